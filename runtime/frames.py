@@ -1,0 +1,441 @@
+"""The frame format: channel table, in-memory :class:`Frame`, and the OpenEXR reader/writer.
+
+One frame of a sequence is one OpenEXR file.  This module is the single definition of its
+layout; the renderer writes through :func:`write_frame`, and training, export tests and the
+runtime read through :func:`read_frame` (or :func:`read_plain` for the colour/albedo/normal
+EXR triple other denoisers use).  numpy + OpenEXR only: no torch here.
+
+Conventions (all layers):
+  * images are ``float32`` arrays of shape ``(H, W, C)``; samples ``(S, H, W, F)``;
+  * pixel (x, y): x to the right, y down, pixel centres at integer + 0.5;
+  * world space is the scene's (Mitsuba: right-handed, the scene file's units);
+  * radiance is linear HDR in the renderer's units (W·sr⁻¹·m⁻² per channel).
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Iterable, Optional
+
+import numpy as np
+
+FORMAT_VERSION = 1
+#: Header attribute holding the frame's JSON metadata.
+META_KEY = "mcdenoise"
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One documented layer: EXR channels ``<name>.<c>`` for c in ``channels``."""
+
+    name: str
+    channels: tuple[str, ...]
+    meaning: str
+    units: str
+    frame: str
+    miss: str
+
+
+#: Pixel layers, in file order.  ``color`` is the only one every frame must have.
+PIXEL_LAYERS: tuple[Layer, ...] = (
+    Layer("color", ("R", "G", "B"), "mean of the S per-sample radiance values (the noisy image)",
+          "linear HDR radiance", "-", "environment radiance (0 without one)"),
+    Layer("albedo", ("R", "G", "B"), "mean first-hit albedo (Mitsuba `albedo` AOV)",
+          "[0, 1]; >1 possible on roughconductor; 0 on delta BSDFs", "-", "0"),
+    Layer("normal", ("X", "Y", "Z"), "mean first-hit shading normal, renormalised",
+          "unit vector", "world", "0"),
+    Layer("depth", ("Z",), "mean distance from the camera along the primary ray",
+          "scene units", "-", "0"),
+    Layer("position", ("X", "Y", "Z"), "mean first-hit position", "scene units", "world", "0"),
+    Layer("motion", ("X", "Y"),
+          "where this pixel's surface point was in frame t-1, as an offset: prev = (x, y) + motion",
+          "pixels", "screen (x right, y down)", "0"),
+    Layer("valid", ("V",),
+          "1 where the point was visible at prev in frame t-1 (same surface, on screen), else 0 "
+          "(disocclusion, off-screen, miss, first frame, camera cut)", "{0, 1}", "-", "0"),
+    Layer("reference", ("R", "G", "B"), "radiance at ref_spp with an independent seed",
+          "linear HDR radiance", "-", "environment radiance"),
+)
+
+#: Per-sample features, in order; EXR channel ``sample<i>.<feature>``; array (S, H, W, F).
+#: (name, meaning, units / range, frame, value on a miss)
+SAMPLE_FEATURES_DOC: tuple[tuple[str, str, str, str, str], ...] = (
+    ("radiance.R", "sample radiance", "linear HDR", "-", "environment"),
+    ("radiance.G", "", "", "", ""),
+    ("radiance.B", "", "", "", ""),
+    ("albedo.R", "first-hit albedo", "[0,1] (>1 roughconductor, 0 delta)", "-", "0"),
+    ("albedo.G", "", "", "", ""),
+    ("albedo.B", "", "", "", ""),
+    ("normal.X", "first-hit shading normal", "unit", "world", "0"),
+    ("normal.Y", "", "", "", ""),
+    ("normal.Z", "", "", "", ""),
+    ("depth", "distance along the primary ray", "scene units", "-", "0"),
+    ("position.X", "first-hit position", "scene units", "world", "0"),
+    ("position.Y", "", "", "", ""),
+    ("position.Z", "", "", "", ""),
+    ("roughness", "first-hit material roughness (alpha); 1 for diffuse, 0 for smooth",
+     "[0, 1]", "-", "0"),
+    ("metallic", "1 if the first-hit material is a conductor", "{0, 1}", "-", "0"),
+    ("transmissive", "1 if the first-hit material is a dielectric", "{0, 1}", "-", "0"),
+    ("emissive", "1 if the first-hit shape is an area emitter", "{0, 1}", "-", "0"),
+    ("specular", "1 if the first-hit material is specular-dominated "
+     "(conductor, roughconductor, dielectric); splits radiance into ANF's diffuse/specular",
+     "{0, 1}", "-", "0"),
+    ("specular_color.R", "first-hit specular reflectance (specular_reflectance or 0.04 for "
+     "plastic coatings)", "[0, 1]", "-", "0"),
+    ("specular_color.G", "", "", "", ""),
+    ("specular_color.B", "", "", "", ""),
+    ("motion.X", "offset to this sample's hit point projected into frame t-1",
+     "pixels", "screen", "0"),
+    ("motion.Y", "", "", "", ""),
+    ("coc", "thin-lens circle of confusion diameter at the hit depth (0 for pinhole)",
+     "pixels", "-", "0"),
+    ("time", "shutter time of this sample within the frame (0 without motion blur)",
+     "[0, 1) of the frame interval", "-", "as hit"),
+)
+SAMPLE_FEATURES: tuple[str, ...] = tuple(f[0] for f in SAMPLE_FEATURES_DOC)
+#: Index of the first channel of each per-sample feature group, e.g. "radiance" -> 0.
+SAMPLE_GROUPS: dict[str, slice] = {}
+for _i, _n in enumerate(SAMPLE_FEATURES):
+    _g = _n.split(".")[0]
+    _s = SAMPLE_GROUPS.get(_g)
+    SAMPLE_GROUPS[_g] = slice(_i, _i + 1) if _s is None else slice(_s.start, _i + 1)
+del _i, _n, _g, _s
+
+_LAYER_BY_NAME = {layer.name: layer for layer in PIXEL_LAYERS}
+
+
+class FrameError(ValueError):
+    """A frame file or array is missing, unreadable, or lacks / mis-shapes a channel."""
+
+
+@dataclass
+class Frame:
+    """One frame. Arrays are float32; absent layers are ``None``.
+
+    color, albedo, normal, position, reference: (H, W, 3); depth, valid: (H, W, 1);
+    motion: (H, W, 2); samples: (S, H, W, len(SAMPLE_FEATURES)).
+    ``meta``: JSON-able dict (spp, frame index, scene seed, camera, cut flag, ...).
+    """
+
+    color: np.ndarray
+    albedo: Optional[np.ndarray] = None
+    normal: Optional[np.ndarray] = None
+    depth: Optional[np.ndarray] = None
+    position: Optional[np.ndarray] = None
+    motion: Optional[np.ndarray] = None
+    valid: Optional[np.ndarray] = None
+    reference: Optional[np.ndarray] = None
+    samples: Optional[np.ndarray] = None
+    meta: dict = field(default_factory=dict)
+    path: Optional[str] = None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(H, W) in pixels."""
+        return int(self.color.shape[0]), int(self.color.shape[1])
+
+    @property
+    def spp(self) -> int:
+        """Samples per pixel stored per-sample (0 if none stored)."""
+        return 0 if self.samples is None else int(self.samples.shape[0])
+
+    def layer(self, name: str) -> np.ndarray:
+        """A pixel layer by name, or a :class:`FrameError` naming the frame and layer."""
+        if name not in _LAYER_BY_NAME:
+            raise FrameError(f"unknown layer {name!r}; known: {[l.name for l in PIXEL_LAYERS]}")
+        arr = getattr(self, name)
+        if arr is None:
+            raise FrameError(f"{self.path or 'frame'}: missing layer {name!r} "
+                             f"(channels {', '.join(name + '.' + c for c in _LAYER_BY_NAME[name].channels)})")
+        return arr
+
+    def sample_feature(self, group: str) -> np.ndarray:
+        """Per-sample feature group (e.g. "radiance", "depth") as (S, H, W, C)."""
+        if self.samples is None:
+            raise FrameError(f"{self.path or 'frame'}: has no per-sample layers (sample<i>.*)")
+        if group not in SAMPLE_GROUPS:
+            raise FrameError(f"unknown sample feature {group!r}; known: {list(SAMPLE_GROUPS)}")
+        return self.samples[..., SAMPLE_GROUPS[group]]
+
+    def validate(self) -> None:
+        """Check every present layer has shape (H, W, C) of its table entry; raise FrameError."""
+        h, w = self.size
+        for layer in PIXEL_LAYERS:
+            arr = getattr(self, layer.name)
+            if arr is None:
+                continue
+            want = (h, w, len(layer.channels))
+            if arr.shape != want:
+                raise FrameError(f"{self.path or 'frame'}: layer {layer.name!r} has shape "
+                                 f"{arr.shape}, expected {want}")
+        if self.samples is not None and self.samples.shape[1:] != (h, w, len(SAMPLE_FEATURES)):
+            raise FrameError(f"{self.path or 'frame'}: samples have shape {self.samples.shape}, "
+                             f"expected (S, {h}, {w}, {len(SAMPLE_FEATURES)})")
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------
+
+def write_frame(path: str | os.PathLike, frame: Frame) -> None:
+    """Write ``frame`` as one ZIP-compressed float32 OpenEXR file with the documented layout."""
+    import OpenEXR
+
+    frame.validate()
+    channels: dict[str, np.ndarray] = {}
+    for layer in PIXEL_LAYERS:
+        arr = getattr(frame, layer.name)
+        if arr is None:
+            continue
+        for c, cname in enumerate(layer.channels):
+            channels[f"{layer.name}.{cname}"] = np.ascontiguousarray(arr[..., c], dtype=np.float32)
+    if frame.samples is not None:
+        for s in range(frame.samples.shape[0]):
+            for f, fname in enumerate(SAMPLE_FEATURES):
+                channels[f"sample{s}.{fname}"] = np.ascontiguousarray(frame.samples[s, ..., f],
+                                                                      dtype=np.float32)
+    meta = dict(frame.meta)
+    meta["format_version"] = FORMAT_VERSION
+    meta["spp"] = frame.spp if frame.samples is not None else meta.get("spp", 0)
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        META_KEY: json.dumps(meta, sort_keys=True),
+    }
+    tmp = f"{os.fspath(path)}.tmp"
+    OpenEXR.File(header, channels).write(tmp)
+    os.replace(tmp, path)  # a crash mid-write never leaves a truncated frame behind
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------
+
+def _open(path: str, header_only: bool = False):
+    import OpenEXR
+
+    if not os.path.exists(path):
+        raise FrameError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise FrameError(f"{path}: is a directory, expected an OpenEXR file")
+    try:
+        return OpenEXR.File(path, separate_channels=True, header_only=header_only)
+    except Exception as e:  # OpenEXR raises bare RuntimeError/Exception with C++ messages
+        raise FrameError(f"{path}: not a readable OpenEXR file ({e})") from None
+
+
+def _channel_names(f) -> list[str]:
+    return [c.name for c in f.header()["channels"]]
+
+
+def _as_float32(path: str, name: str, arr: np.ndarray) -> np.ndarray:
+    if arr.dtype == np.float32:
+        return arr
+    if arr.dtype == np.float16:
+        return arr.astype(np.float32)
+    raise FrameError(f"{path}: channel {name!r} has dtype {arr.dtype}, expected float32 or half")
+
+
+def read_meta(path: str | os.PathLike) -> dict:
+    """The frame's JSON metadata (header only; cheap)."""
+    path = os.fspath(path)
+    f = _open(path, header_only=True)
+    raw = f.header().get(META_KEY)
+    if raw is None:
+        return {}
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError as e:
+        raise FrameError(f"{path}: header attribute {META_KEY!r} is not valid JSON ({e})") from None
+
+
+def read_frame(path: str | os.PathLike, layers: Optional[Iterable[str]] = None,
+               require: Iterable[str] = ("color",), samples: bool | int = True) -> Frame:
+    """Read a frame file written by :func:`write_frame`.
+
+    Args:
+      layers: pixel layers to load (default: all present).
+      require: layers that must be present; a missing channel raises :class:`FrameError`
+        naming the file and the channel.  Use ``"samples"`` to require per-sample layers.
+      samples: load per-sample layers (``True``), none (``False``), or only the first N.
+    """
+    path = os.fspath(path)
+    f = _open(path)
+    try:
+        chans = f.channels()
+    except Exception as e:
+        raise FrameError(f"{path}: pixel data cannot be decoded, file truncated or corrupt ({e})") from None
+    raw = f.header().get(META_KEY)
+    try:
+        meta = json.loads(raw) if raw else {}
+    except json.JSONDecodeError as e:
+        raise FrameError(f"{path}: header attribute {META_KEY!r} is not valid JSON ({e})") from None
+
+    def get(name: str) -> np.ndarray:
+        if name not in chans:
+            raise FrameError(f"{path}: missing channel {name!r}")
+        return _as_float32(path, name, chans[name].pixels)
+
+    require = set(require)
+    want = [l.name for l in PIXEL_LAYERS] if layers is None else list(layers)
+    out: dict[str, np.ndarray] = {}
+    for name in set(want) | (require - {"samples"}):
+        if name not in _LAYER_BY_NAME:
+            raise FrameError(f"unknown layer {name!r}; known: {list(_LAYER_BY_NAME)}")
+        layer = _LAYER_BY_NAME[name]
+        present = [f"{name}.{c}" in chans for c in layer.channels]
+        if not any(present) and name not in require:
+            continue
+        out[name] = np.stack([get(f"{name}.{c}") for c in layer.channels], axis=-1)
+    if "color" not in out:
+        raise FrameError(f"{path}: missing channel 'color.R'")
+
+    sample_arr = None
+    n_stored = 0
+    while f"sample{n_stored}.radiance.R" in chans:
+        n_stored += 1
+    if "samples" in require and n_stored == 0:
+        raise FrameError(f"{path}: missing channel 'sample0.radiance.R' (no per-sample layers)")
+    n_load = n_stored if samples is True else (0 if samples is False else min(int(samples), n_stored))
+    if n_load:
+        sample_arr = np.empty((n_load, *out["color"].shape[:2], len(SAMPLE_FEATURES)), np.float32)
+        for s in range(n_load):
+            for i, fname in enumerate(SAMPLE_FEATURES):
+                sample_arr[s, ..., i] = get(f"sample{s}.{fname}")
+    frame = Frame(samples=sample_arr, meta=meta, path=path, **out)
+    frame.validate()
+    return frame
+
+
+def _read_pfm(path: str) -> np.ndarray:
+    with open(path, "rb") as fh:
+        kind = fh.readline().strip()
+        if kind not in (b"PF", b"Pf"):
+            raise FrameError(f"{path}: not a PFM file (magic {kind!r})")
+        try:
+            w, h = (int(v) for v in fh.readline().split())
+            scale = float(fh.readline())
+        except ValueError:
+            raise FrameError(f"{path}: malformed PFM header") from None
+        c = 3 if kind == b"PF" else 1
+        data = np.frombuffer(fh.read(), dtype="<f4" if scale < 0 else ">f4")
+    if data.size != w * h * c:
+        raise FrameError(f"{path}: PFM truncated ({data.size} of {w * h * c} floats)")
+    img = data.reshape(h, w, c)[::-1].astype(np.float32)
+    return np.repeat(img, 3, axis=-1) if c == 1 else img
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """A plain RGB image (EXR with R,G,B or <layer>.R,G,B channels, or PFM) as (H, W, 3)."""
+    path = os.fspath(path)
+    if path.lower().endswith(".pfm"):
+        if not os.path.exists(path):
+            raise FrameError(f"{path}: no such file")
+        return _read_pfm(path)
+    f = _open(path)
+    try:
+        chans = f.channels()
+    except Exception as e:
+        raise FrameError(f"{path}: pixel data cannot be decoded, file truncated or corrupt ({e})") from None
+    for prefix in ("", "color.", "rgb.", "albedo.", "normal."):
+        names = [prefix + c for c in "RGB"]
+        if all(n in chans for n in names):
+            return np.stack([_as_float32(path, n, chans[n].pixels) for n in names], axis=-1)
+    if all(n in chans for n in ("X", "Y", "Z")):
+        return np.stack([_as_float32(path, n, chans[n].pixels) for n in "XYZ"], axis=-1)
+    raise FrameError(f"{path}: missing channel 'R' (found {sorted(chans)[:8]})")
+
+
+def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None,
+               normal: str | os.PathLike | None = None) -> Frame:
+    """The Open Image Denoise input convention: a colour image plus optional albedo/normal
+    images of the same size (EXR or PFM).  Returns a pixel-only :class:`Frame`."""
+    c = read_rgb(color)
+    fr = Frame(color=c, path=os.fspath(color), meta={"source": "plain"})
+    for name, p in (("albedo", albedo), ("normal", normal)):
+        if p is None:
+            continue
+        arr = read_rgb(p)
+        if arr.shape != c.shape:
+            raise FrameError(f"{p}: {name} image is {arr.shape[1]}x{arr.shape[0]}, colour "
+                             f"{color} is {c.shape[1]}x{c.shape[0]}")
+        setattr(fr, name, arr)
+    return fr
+
+
+def describe(path: str | os.PathLike) -> str:
+    """Human-readable summary of a frame file (``mcdenoise inspect``)."""
+    path = os.fspath(path)
+    f = _open(path)
+    names = _channel_names(f)
+    meta = read_meta(path)
+    chans = f.channels()
+    lines = [f"{path}"]
+    first = chans[names[0]].pixels if names else None
+    if first is not None:
+        lines.append(f"  resolution: {first.shape[1]}x{first.shape[0]}, {len(names)} channels")
+    groups: dict[str, list[str]] = {}
+    n_samples = 0
+    for n in names:
+        head = n.split(".")[0]
+        if head.startswith("sample") and head[6:].isdigit():
+            n_samples = max(n_samples, int(head[6:]) + 1)
+            continue
+        groups.setdefault(head, []).append(n)
+    lines.append("  pixel layers:")
+    for g, chs in groups.items():
+        arr = np.stack([chans[c].pixels.astype(np.float64) for c in chs])
+        fin = np.isfinite(arr)
+        lines.append(f"    {g:<10} {','.join(c.split('.', 1)[-1] for c in chs):<8} "
+                     f"{str(chans[chs[0]].pixels.dtype):<8} min {np.min(arr[fin]) if fin.any() else float('nan'):.4g} "
+                     f"mean {np.mean(arr[fin]) if fin.any() else float('nan'):.4g} "
+                     f"max {np.max(arr[fin]) if fin.any() else float('nan'):.4g}"
+                     + (f"  non-finite {int((~fin).sum())}" if not fin.all() else ""))
+    if n_samples:
+        lines.append(f"  per-sample layers: {n_samples} samples x {len(SAMPLE_FEATURES)} features "
+                     f"(sample<i>.{{{', '.join(SAMPLE_GROUPS)}}})")
+    if meta:
+        lines.append("  metadata:")
+        for k in sorted(meta):
+            v = json.dumps(meta[k])
+            lines.append(f"    {k}: {v if len(v) < 100 else v[:97] + '...'}")
+    return "\n".join(lines)
+
+
+def channel_table_markdown() -> str:
+    """The channel documentation as a markdown table (the README's table is generated here)."""
+    rows = ["| EXR channels | meaning | units / range | frame | on a miss |", "|---|---|---|---|---|"]
+    for l in PIXEL_LAYERS:
+        rows.append(f"| `{l.name}.{{{','.join(l.channels)}}}` | {l.meaning} | {l.units} | {l.frame} | {l.miss} |")
+    groups: dict[str, list] = {}
+    for name, *doc in SAMPLE_FEATURES_DOC:
+        g = name.split(".")[0]
+        if g in groups:
+            groups[g][0].append(name.split(".", 1)[1])
+        else:
+            groups[g] = [[name.split(".", 1)[1]] if "." in name else [], *doc]
+    for g, (chs, meaning, units, frame, miss) in groups.items():
+        cs = f".{{{','.join(chs)}}}" if chs else ""
+        rows.append(f"| `sample<i>.{g}{cs}` | {meaning} | {units} | {frame} | {miss} |")
+    return "\n".join(rows)
+
+
+#: Sequence layout on disk: <root>/<scene dir>/frame_<t:04d>.exr, one folder per sequence,
+#: plus <root>/manifest.json written by the renderer (scene seeds, render settings).
+MANIFEST = "manifest.json"
+
+
+def frame_name(t: int) -> str:
+    """File name of frame ``t`` inside a sequence folder."""
+    return f"frame_{t:04d}.exr"
+
+
+def frame_paths(directory: str | os.PathLike) -> list[str]:
+    """Sorted frame files (``*.exr``) directly in ``directory``."""
+    directory = os.fspath(directory)
+    if not os.path.isdir(directory):
+        raise FrameError(f"{directory}: not a directory")
+    return sorted(os.path.join(directory, n) for n in os.listdir(directory) if n.endswith(".exr"))
+

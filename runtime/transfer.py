@@ -1,0 +1,91 @@
+"""Transfer functions (tone curves) shared by training, export, metrics and the runtime.
+
+This is the one definition of every curve the package applies to radiance.  Each function
+works on numpy arrays and on torch tensors alike (the array namespace is picked from the
+argument, so this module never imports torch itself) and keeps gradients for torch input.
+
+Radiance is linear HDR, in the renderer's units (Mitsuba: W·sr⁻¹·m⁻² per RGB channel),
+non-negative for valid input.  Curves clamp negative values to 0 before applying themselves.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable
+
+import numpy as np
+
+#: Gamma of the "gamma" curve (WSKPN §5.1, BMFR data: gamma correction to LDR).
+GAMMA = 2.2
+#: Exponent of the Reinhard + gamma operator used for PSNR (ANF Eq. 15).
+REINHARD_GAMMA = 2.4
+
+
+def xp(x: Any):
+    """Array namespace of ``x``: the torch module for tensors, else numpy."""
+    if type(x).__module__.startswith("torch"):
+        return sys.modules["torch"]
+    return np
+
+
+def _clamp0(x):
+    if xp(x) is np:
+        return np.maximum(x, 0.0)
+    return x.clamp(min=0.0)
+
+
+def _clamp01(x):
+    if xp(x) is np:
+        return np.clip(x, 0.0, 1.0)
+    return x.clamp(0.0, 1.0)
+
+
+def gamma(x):
+    """LDR gamma curve: ``clip(x, 0, 1) ** (1/2.2)``. Input linear radiance, output [0, 1].
+
+    Values above 1 saturate (the paper's LDR input); the clip keeps the pow differentiable
+    away from 0 for torch (a tiny floor avoids the infinite slope of x**(1/2.2) at 0).
+    """
+    return (_clamp01(x) + 1e-8) ** (1.0 / GAMMA)
+
+
+def gamma_inv(y):
+    """Inverse of :func:`gamma` on [0, 1]."""
+    return _clamp01(y) ** GAMMA
+
+
+def log1p(x):
+    """``log(1 + max(x, 0))`` (ANF/NDLE sample input, KPCN). Output [0, inf)."""
+    return xp(x).log1p(_clamp0(x))
+
+
+def log1p_inv(y):
+    """Inverse of :func:`log1p`."""
+    return xp(y).expm1(_clamp0(y))
+
+
+def reinhard_gamma(x):
+    """ANF Eq. 15: ``(x / (1 + x)) ** (1/2.4)`` for x >= 0. Output [0, 1)."""
+    x = _clamp0(x)
+    return (x / (1.0 + x) + 1e-12) ** (1.0 / REINHARD_GAMMA)
+
+
+def identity(x):
+    """Linear radiance, unchanged."""
+    return x
+
+
+#: Name -> (forward, inverse).  Specs and ONNX metadata refer to curves by these names.
+TRANSFERS: dict[str, tuple[Callable, Callable | None]] = {
+    "linear": (identity, identity),
+    "gamma": (gamma, gamma_inv),
+    "log1p": (log1p, log1p_inv),
+    "reinhard_gamma": (reinhard_gamma, None),
+}
+
+
+def get(name: str) -> Callable:
+    """Forward curve by name; raises ``KeyError`` listing the known names."""
+    try:
+        return TRANSFERS[name][0]
+    except KeyError:
+        raise KeyError(f"unknown transfer function {name!r}; known: {sorted(TRANSFERS)}") from None
