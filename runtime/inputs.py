@@ -1,0 +1,110 @@
+"""Frame -> model input tensors: the one definition shared by the dataset and the runtime driver.
+
+Model inputs are NCHW float32.  Pixel layers map to inputs by name (``color``, ``albedo``,
+``normal``, ``depth``, ...).  Two conversions happen here and nowhere else:
+
+* **Sanitising** radiance: non-finite values become 0, negatives become 0, values above
+  :data:`MAX_RADIANCE` are clamped; the counts are reported so callers can say so.
+* **Screen-space normals**: the renderer stores world-space normals; models see them in the
+  camera's screen-aligned frame (x right, y down, z forward into the scene), so that image
+  flips and 90° rotations act on normals exactly as on motion vectors (negate/swap x, y).
+  Frames without a camera in their metadata (plain OIDN-style input) keep their normals.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from runtime.frames import Frame, FrameError
+
+#: Radiance above this is clamped when sanitising (units of the renderer; our scenes' emitters
+#: are <= ~100, so only broken samples get here).  Chosen below float16's max (65504) so
+#: half-precision graphs never see inf.
+MAX_RADIANCE = 6.0e4
+#: Layers holding radiance (sanitised); geometric layers get non-finite -> 0 only.
+RADIANCE_LAYERS = ("color", "reference")
+
+
+@dataclass
+class SanitizeReport:
+    """What sanitising changed, per layer: counts of pixels' values replaced."""
+
+    nonfinite: dict = field(default_factory=dict)
+    negative: dict = field(default_factory=dict)
+    clamped: dict = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return sum(self.nonfinite.values()) + sum(self.negative.values()) + sum(self.clamped.values())
+
+    def summary(self) -> str:
+        parts = []
+        for what, d in (("non-finite", self.nonfinite), ("negative", self.negative),
+                        ("above max", self.clamped)):
+            for layer, n in d.items():
+                if n:
+                    parts.append(f"{n} {what} values in {layer}")
+        return ", ".join(parts) if parts else "clean"
+
+
+def sanitize_array(arr: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
+    """Copy of ``arr`` with non-finite -> 0 and, for radiance, negatives -> 0 and > max clamped."""
+    out = np.array(arr, dtype=np.float32, copy=True)
+    bad = ~np.isfinite(out)
+    if bad.any():
+        report.nonfinite[name] = report.nonfinite.get(name, 0) + int(bad.sum())
+        out[bad] = 0.0
+    if radiance:
+        neg = out < 0
+        if neg.any():
+            report.negative[name] = report.negative.get(name, 0) + int(neg.sum())
+            out[neg] = 0.0
+        big = out > MAX_RADIANCE
+        if big.any():
+            report.clamped[name] = report.clamped.get(name, 0) + int(big.sum())
+            out[big] = MAX_RADIANCE
+    return out
+
+
+def camera_axes(meta: dict) -> np.ndarray | None:
+    """3x3 matrix whose rows are the camera's screen right, screen down and forward axes in
+    world space, from ``meta["camera"]["to_world"]`` (Mitsuba convention: local +x is screen
+    left, +y up, +z forward), or None when the frame carries no camera."""
+    cam = meta.get("camera") if isinstance(meta, dict) else None
+    if not cam or "to_world" not in cam:
+        return None
+    m = np.asarray(cam["to_world"], dtype=np.float64)[:3, :3]
+    axes = np.stack([-m[:, 0], -m[:, 1], m[:, 2]])
+    return (axes / np.linalg.norm(axes, axis=1, keepdims=True)).astype(np.float32)
+
+
+def screen_normals(normal: np.ndarray, meta: dict) -> np.ndarray:
+    """World-space normals (..., 3) -> screen-aligned camera space (x right, y down, z fwd)."""
+    axes = camera_axes(meta)
+    if axes is None:
+        return normal
+    return (normal @ axes.T).astype(np.float32)
+
+
+def frame_inputs(frame: Frame, layers, report: SanitizeReport | None = None) -> dict[str, np.ndarray]:
+    """The model inputs for ``layers`` as a dict name -> (1, C, H, W) float32, sanitised.
+
+    Raises FrameError naming the frame and the missing layer.
+    """
+    report = SanitizeReport() if report is None else report
+    out = {}
+    for name in layers:
+        arr = frame.layer(name)
+        arr = sanitize_array(arr, name in RADIANCE_LAYERS, name, report)
+        if name == "normal":
+            arr = screen_normals(arr, frame.meta)
+        out[name] = np.ascontiguousarray(arr.transpose(2, 0, 1)[None])
+    return out
+
+
+def check_size(frame: Frame, expected: tuple[int, int] | None) -> None:
+    """Raise FrameError when a frame's layers disagree in size with each other."""
+    frame.validate()
+    if expected is not None and frame.size != tuple(expected):
+        raise FrameError(f"{frame.path or 'frame'}: size {frame.size} differs from {expected}")

@@ -1,0 +1,118 @@
+"""Temporal reprojection with a geometric consistency test: one definition for runtime and training.
+
+The driver keeps every model's temporal state generically: after frame t-1 it stores the
+model's ``next_<name>`` outputs and frame t-1's guide buffers; at frame t it calls
+:func:`reproject` to warp the state along the motion vectors, testing each bilinear tap for
+geometric consistency (world position and shading normal, as in WSKPN §4.1 / SVGF), and feeds
+the warped state plus the resulting ``history`` mask to the model.  Training calls the same
+function on torch tensors (it is differentiable w.r.t. the state), so train and test agree.
+
+All arrays are NCHW: states (N, C, H, W); motion (N, 2, H, W) in pixels with
+prev = (x, y) + motion (x right, y down); positions (N, 3, H, W) world space; normals
+(N, 3, H, W) world-space unit vectors; depth (N, 1, H, W), 0 on a miss.  numpy or torch.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.transfer import xp
+
+#: A tap is consistent when its world position lies within this fraction of the current
+#: depth (≈ 8 pixel footprints at 256 px and 45° fov: loose enough for slanted surfaces,
+#: tight enough to reject the background behind an edge).
+POSITION_TOLERANCE = 0.05
+#: ... and its normal is within acos(0.9) ≈ 26° of the current one.
+NORMAL_COS_TOLERANCE = 0.9
+#: Relative depth tolerance used when frames carry no world position.
+DEPTH_TOLERANCE = 0.1
+#: Pixels whose consistent bilinear weight sums to less than this get no history.
+MIN_WEIGHT = 1e-3
+
+
+def _floor(x):
+    return np.floor(x) if xp(x) is np else x.floor()
+
+
+def _gather(flat, idx):
+    """flat (N, C, L), idx (N, 1, M) int -> (N, C, M)."""
+    n, c = flat.shape[:2]
+    if xp(flat) is np:
+        return np.take_along_axis(flat, np.broadcast_to(idx, (n, c, idx.shape[-1])), axis=2)
+    return flat.gather(2, idx.expand(n, c, idx.shape[-1]))
+
+
+def _to_index(v):
+    return v.astype(np.int64) if xp(v) is np else v.long()
+
+
+def _grid(motion):
+    n, _, h, w = motion.shape
+    if xp(motion) is np:
+        ys, xs = np.meshgrid(np.arange(h, dtype=np.float32), np.arange(w, dtype=np.float32), indexing="ij")
+    else:
+        import torch
+
+        ys, xs = torch.meshgrid(torch.arange(h, dtype=motion.dtype, device=motion.device),
+                                torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
+    return xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]
+
+
+def reproject(states, motion, cur: dict, prev: dict):
+    """Warp ``states`` from frame t-1 to frame t and compute the history mask.
+
+    Args:
+      states: list of (N, C_i, H, W) arrays from frame t-1 (the model's ``next_*`` outputs).
+      motion: (N, 2, H, W) frame t's motion vectors, pixels.
+      cur, prev: guide buffers of frames t and t-1: ``depth`` (required) and optionally
+        ``position`` and ``normal`` (world space).  Position beats depth when both frames have it.
+
+    Returns:
+      (warped states list, history (N, 1, H, W) in {0, 1}).  Inconsistent or off-screen taps are
+      dropped and the remaining bilinear weights renormalised; pixels with no consistent tap get
+      history 0 and state 0.
+    """
+    n, _, h, w = motion.shape
+    px, py = _grid(motion)
+    x0, y0 = _floor(px), _floor(py)
+    fx, fy = px - x0, py - y0
+    flat = lambda a: a.reshape(a.shape[0], a.shape[1], h * w)
+    prev_flat = {k: flat(v) for k, v in prev.items()}
+    state_flat = [flat(s) for s in states]
+    use_pos = "position" in cur and "position" in prev
+    cur_depth = cur["depth"]
+    cur_hit = cur_depth > 0
+
+    wsum = 0.0
+    acc = [0.0 for _ in states]
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        tx, ty = x0 + dx, y0 + dy
+        wgt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+        inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+        tx_c = tx.clip(0, w - 1) if xp(tx) is np else tx.clamp(0, w - 1)
+        ty_c = ty.clip(0, h - 1) if xp(ty) is np else ty.clamp(0, h - 1)
+        idx = _to_index(ty_c * w + tx_c).reshape(n, 1, h * w)
+        tap = lambda f: _gather(f, idx).reshape(f.shape[0], f.shape[1], h, w)
+        p_depth = tap(prev_flat["depth"])
+        ok = inside & cur_hit & (p_depth > 0)
+        if use_pos:
+            d = tap(prev_flat["position"]) - cur["position"]
+            dist = ((d * d).sum(1, keepdims=True) if xp(d) is np else (d * d).sum(1, keepdim=True)) ** 0.5
+            ok = ok & (dist <= POSITION_TOLERANCE * cur_depth)
+        else:
+            ok = ok & ((p_depth - cur_depth).__abs__() <= DEPTH_TOLERANCE * cur_depth)
+        if "normal" in cur and "normal" in prev:
+            pn = tap(prev_flat["normal"]) * cur["normal"]
+            cos = pn.sum(1, keepdims=True) if xp(pn) is np else pn.sum(1, keepdim=True)
+            ok = ok & (cos >= NORMAL_COS_TOLERANCE)
+        wk = wgt * (ok.astype(np.float32) if xp(ok) is np else ok.to(wgt.dtype))
+        wsum = wsum + wk
+        acc = [a + wk * tap(s) for a, s in zip(acc, state_flat)]
+    has = wsum >= MIN_WEIGHT
+    if xp(wsum) is np:
+        history = has.astype(np.float32)
+        denom = np.maximum(wsum, MIN_WEIGHT)
+    else:
+        history = has.to(wsum.dtype)
+        denom = wsum.clamp(min=MIN_WEIGHT)
+    warped = [a / denom * history for a in acc]
+    return warped, history
