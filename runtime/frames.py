@@ -422,6 +422,20 @@ def channel_table_markdown() -> str:
     return "\n".join(rows)
 
 
+def pixel_means(samples: np.ndarray) -> dict[str, np.ndarray]:
+    """Pixel layers implied by per-sample data (S, H, W, F): the mean of radiance (``color``),
+    albedo, depth and position, and the renormalised mean normal (0 where all samples miss).
+    The one definition of how samples become pixels; the renderer and the dataset's spp
+    subsets both use it."""
+    m = samples.mean(axis=0)
+    g = SAMPLE_GROUPS
+    nrm = m[..., g["normal"]]
+    length = np.linalg.norm(nrm, axis=-1, keepdims=True)
+    nrm = np.where(length > 1e-6, nrm / np.maximum(length, 1e-6), 0.0).astype(np.float32)
+    return {"color": m[..., g["radiance"]], "albedo": m[..., g["albedo"]], "normal": nrm,
+            "depth": m[..., g["depth"]], "position": m[..., g["position"]]}
+
+
 #: Sequence layout on disk: <root>/<scene dir>/frame_<t:04d>.exr, one folder per sequence,
 #: plus <root>/manifest.json written by the renderer (scene seeds, render settings).
 MANIFEST = "manifest.json"
