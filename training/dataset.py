@@ -1,0 +1,224 @@
+"""Training/evaluation dataset over sequences written by ``mcdenoise render``.
+
+An item is a window of T consecutive frames of one sequence, cropped at one location, with a
+random subset of n samples per pixel (n drawn from ``spp_choices``, at most what was stored)
+and one of the 8 image symmetries (flips, 90° rotations) applied consistently to every
+channel: screen-space normals and motion vectors have their x/y components negated and
+swapped with the image, world-space guides (position, world normal) are left alone because
+they are only compared with each other.  Splits are by scene seed, never by frame.
+
+Item tensors, float32, leading time axis T:
+  every input layer the spec names, e.g. color (T, 3, c, c) linear HDR, albedo (T, 3, c, c),
+  normal (T, 3, c, c) screen space, depth (T, 1, c, c);
+  reference (T, 3, c, c); motion (T, 2, c, c) pixels; position (T, 3, c, c) and
+  normal_world (T, 3, c, c) world-space guides for :func:`runtime.temporal.reproject`;
+  samples (T, n, F, c, c) when ``samples=True`` (per-sample models).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from runtime.frames import (MANIFEST, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
+                            read_frame, read_meta)
+from runtime.inputs import SanitizeReport, frame_inputs
+
+#: Channels holding screen-space (x right, y down) vector components, per item key.
+SCREEN_VECTORS = {"normal": (0, 1), "motion": (0, 1),
+                  "samples": (SAMPLE_GROUPS["motion"].start, SAMPLE_GROUPS["motion"].start + 1)}
+
+
+@dataclass(frozen=True)
+class SequenceInfo:
+    folder: str
+    seed: int
+    frames: tuple[str, ...]
+    spp: int
+
+
+def discover(root: str | os.PathLike) -> list[SequenceInfo]:
+    """All sequences under ``root`` (folders holding frame_*.exr), sorted by scene seed."""
+    root = os.fspath(root)
+    if not os.path.isdir(root):
+        raise FrameError(f"{root}: dataset folder does not exist")
+    seqs = []
+    for name in sorted(os.listdir(root)):
+        folder = os.path.join(root, name)
+        if not os.path.isdir(folder):
+            continue
+        paths = frame_paths(folder)
+        if not paths:
+            continue
+        meta = read_meta(paths[0])
+        seed = meta.get("scene_seed", meta.get("seed"))
+        if seed is None:
+            raise FrameError(f"{paths[0]}: metadata has no scene_seed")
+        seqs.append(SequenceInfo(folder, int(seed), tuple(paths), int(meta.get("spp", 0))))
+    if not seqs:
+        raise FrameError(f"{root}: no sequences (expected <root>/<scene>/frame_0000.exr, see {MANIFEST})")
+    return sorted(seqs, key=lambda s: s.seed)
+
+
+def _seed_hash(seed: int) -> int:
+    return int.from_bytes(hashlib.sha256(f"scene-{seed}".encode()).digest()[:4], "little")
+
+
+def split(seqs: Sequence[SequenceInfo], part: str, val_fraction: float = 0.2) -> list[SequenceInfo]:
+    """Deterministic split by scene seed: a seed is in "val" when its hash falls in the lowest
+    ``val_fraction`` (at least one sequence when there are two or more), else "train".
+    ``part="all"`` returns everything (for a separately rendered test set)."""
+    if part == "all":
+        return list(seqs)
+    if part not in ("train", "val"):
+        raise ValueError(f"split must be train, val or all, got {part!r}")
+    ranked = sorted(seqs, key=lambda s: _seed_hash(s.seed))
+    n_val = int(round(val_fraction * len(ranked)))
+    if len(ranked) >= 2:
+        n_val = min(max(n_val, 1), len(ranked) - 1)
+    else:
+        n_val = 0
+    val = {s.seed for s in ranked[:n_val]}
+    return [s for s in seqs if (s.seed in val) == (part == "val")]
+
+
+def dihedral(arr: np.ndarray, k: int, vector: tuple[int, int] | None = None) -> np.ndarray:
+    """Apply image symmetry k in 0..7 to a (..., C, H, W) array: bit 0 transposes (swap x, y),
+    bit 1 flips x, bit 2 flips y.  ``vector`` names the channels (cx, cy) holding screen
+    (x, y) vector components; they are swapped/negated to match, so a vector still points
+    at the same image content after the transform."""
+    out = arr
+    if k & 1:
+        out = np.swapaxes(out, -1, -2).copy()
+        if vector:
+            cx, cy = vector
+            out[..., [cx, cy], :, :] = out[..., [cy, cx], :, :]
+    if k & 2:
+        out = out[..., ::-1].copy()
+        if vector:
+            out[..., vector[0], :, :] *= -1
+    if k & 4:
+        out = out[..., ::-1, :].copy()
+        if vector:
+            out[..., vector[1], :, :] *= -1
+    return np.ascontiguousarray(out)
+
+
+class SequenceDataset:
+    """Random windows of a split of a rendered dataset (see module docstring).
+
+    Args:
+      root: folder written by ``mcdenoise render``.
+      part: "train", "val" or "all".
+      layers: model input layers (e.g. ("color", "albedo", "normal", "depth")).
+      crop: crop side in pixels (clamped to the frame size).
+      spp_choices: candidate samples per pixel; each item draws one (<= stored spp).
+      window: frames per item (T).
+      length: items per epoch (default: one per frame of the split).
+      augment: random crops and symmetries; False gives deterministic centre crops, all
+        stored samples, identity symmetry (validation).
+      samples: also return the per-sample array.
+      seed: base seed; item i of epoch e is a pure function of (seed, e, i).
+    """
+
+    def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
+                 crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
+                 samples=False, seed=0, val_fraction=0.2):
+        self.seqs = split(discover(root), part, val_fraction)
+        if not self.seqs:
+            raise FrameError(f"{root}: split {part!r} is empty ({len(discover(root))} sequences)")
+        self.layers = tuple(layers)
+        self.crop = int(crop)
+        self.spp_choices = tuple(int(s) for s in spp_choices)
+        self.window = int(window)
+        for s in self.seqs:
+            if len(s.frames) < self.window:
+                raise FrameError(f"{s.folder}: {len(s.frames)} frames, window needs {self.window}")
+        self.starts = [(i, t) for i, s in enumerate(self.seqs) for t in range(len(s.frames) - self.window + 1)]
+        self.length = int(length) if length else len(self.starts)
+        self.augment = augment
+        self.samples = samples
+        self.seed = int(seed)
+        self.epoch = 0
+        self._cache: dict[str, Frame] = {}
+
+    def __len__(self) -> int:
+        return self.length
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def _frame(self, path: str) -> Frame:
+        fr = self._cache.get(path)
+        if fr is None:
+            fr = read_frame(path, require=("color", "reference", "motion", "samples"))
+            fr.samples = np.ascontiguousarray(fr.samples)
+            self._cache[path] = fr
+        return fr
+
+    def __getitem__(self, index: int) -> dict:
+        rng = np.random.default_rng([self.seed, self.epoch, int(index)])
+        if self.augment:
+            seq_i, t0 = self.starts[rng.integers(len(self.starts))]
+        else:
+            seq_i, t0 = self.starts[index % len(self.starts)]
+        seq = self.seqs[seq_i]
+        first = self._frame(seq.frames[t0])
+        h, w = first.size
+        c = min(self.crop, h, w)
+        if self.augment:
+            y0, x0 = int(rng.integers(h - c + 1)), int(rng.integers(w - c + 1))
+            stored = first.spp
+            choices = [n for n in self.spp_choices if n <= stored] or [stored]
+            n = int(rng.choice(choices))
+            k = int(rng.integers(8))
+        else:
+            y0, x0 = (h - c) // 2, (w - c) // 2
+            n = min(max(self.spp_choices), first.spp)
+            k = 0
+        out: dict[str, list] = {}
+        for t in range(t0, t0 + self.window):
+            fr = self._frame(seq.frames[t])
+            if fr.size != (h, w):
+                raise FrameError(f"{fr.path}: size {fr.size} differs from {seq.frames[t0]} {h, w}")
+            sub = fr.samples[:, y0:y0 + c, x0:x0 + c]
+            idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if self.augment else np.arange(n)
+            sub = sub[idx]
+            px = pixel_means(sub)
+            crop = Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"],
+                         depth=px["depth"], position=px["position"],
+                         motion=fr.motion[y0:y0 + c, x0:x0 + c],
+                         reference=fr.reference[y0:y0 + c, x0:x0 + c], meta=fr.meta, path=fr.path)
+            report = SanitizeReport()
+            names = tuple(dict.fromkeys(self.layers + ("reference", "motion", "position")))
+            arrays = frame_inputs(crop, names, report)
+            arrays["normal_world"] = np.ascontiguousarray(px["normal"].transpose(2, 0, 1)[None])
+            if "normal" not in arrays:
+                arrays["normal"] = frame_inputs(crop, ("normal",), report)["normal"]
+            if self.samples:
+                arrays["samples"] = np.ascontiguousarray(sub.transpose(0, 3, 1, 2))[None]
+            for key, arr in arrays.items():
+                out.setdefault(key, []).append(dihedral(arr[0], k, SCREEN_VECTORS.get(key)))
+        item = {key: np.stack(v) for key, v in out.items()}
+        item["spp"] = np.int64(n)
+        return item
+
+
+def collate(items: list[dict]):
+    """Stack items into torch tensors: (B, T, C, H, W) per key."""
+    import torch
+
+    return {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
+
+
+def load_manifest(root: str | os.PathLike) -> dict:
+    """The renderer's manifest.json (settings, scene seeds), or {} if absent."""
+    p = os.path.join(os.fspath(root), MANIFEST)
+    if not os.path.exists(p):
+        return {}
+    with open(p) as fh:
+        return json.load(fh)

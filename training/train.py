@@ -1,0 +1,262 @@
+"""``mcdenoise train SPEC --data DIR --out RUN``: train a model spec into a run folder.
+
+Training unrolls each item's window of T frames exactly as the runtime driver runs a
+sequence: frame 0 starts with empty state (history 0); frame t>0 receives the model's
+``next_*`` outputs of frame t-1 warped by :func:`runtime.temporal.reproject` (the same
+function the driver uses) with the consistency-test history mask.  The loss (spec
+``train.loss``) is averaged over the T frames.
+
+Resume is exact: item order is a pure function of (seed, epoch, index), and the checkpoint
+stores model, optimiser, epoch and position within the epoch.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from runtime.args import add_data, add_seed, add_threads
+from runtime.metrics import psnr, relmse, smape
+from runtime.temporal import reproject
+from runtime.transfer import gamma
+from training import runs
+
+
+def _l1_gamma(pred, ref):
+    return (gamma(pred) - gamma(ref)).abs().mean()
+
+
+def _l1(pred, ref):
+    return (pred - ref).abs().mean()
+
+
+#: Loss name (spec ``train.loss``) -> function(pred, ref) on linear HDR NCHW tensors.
+LOSSES = {"smape": smape, "l1": _l1, "l1_gamma": _l1_gamma}
+
+
+def model_inputs(model, frame: dict, states: dict | None, history):
+    """Positional inputs for ``model`` at one frame.
+
+    frame: name -> (N, C, H, W) tensors for this frame; states: state name -> reprojected
+    (N, C, H, W) tensor (None on the first frame: zeros); history: (N, 1, H, W).
+    """
+    import torch
+
+    args = []
+    ref = frame["color"]
+    for name in model.input_names:
+        if name == "history":
+            args.append(history)
+        elif name.startswith("prev_"):
+            st = None if states is None else states.get(name[5:])
+            if st is None:
+                ch = model.state_channels[name[5:]]
+                st = torch.zeros(ref.shape[0], ch, *ref.shape[2:], dtype=ref.dtype)
+            args.append(st)
+        else:
+            if name not in frame:
+                raise KeyError(f"model input {name!r} not in the batch ({sorted(frame)})")
+            args.append(frame[name])
+    return args
+
+
+def run_window(model, batch: dict):
+    """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts."""
+    import torch
+
+    b, t_len = batch["color"].shape[:2]
+    outputs = []
+    states = None
+    prev_guides = None
+    h, w = batch["color"].shape[-2:]
+    history = torch.zeros(b, 1, h, w)
+    for t in range(t_len):
+        frame = {k: v[:, t] for k, v in batch.items() if k != "spp"}
+        guides = {"depth": frame["depth"],
+                  "position": frame["position"], "normal": frame["normal_world"]}
+        if t > 0:
+            names = [n for n in model.output_names if n.startswith("next_")]
+            warped, history = reproject([outputs[-1][n] for n in names], frame["motion"], guides, prev_guides)
+            states = {n[5:]: s for n, s in zip(names, warped)}
+        out = model(*model_inputs(model, frame, states, history))
+        outputs.append(dict(zip(model.output_names, out)))
+        prev_guides = guides
+    return outputs
+
+
+def evaluate(model, dataset, batch_size: int = 4) -> dict:
+    """Validation metrics on the last frame of every window (temporal state warmed up):
+    SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
+    import torch
+
+    from training.dataset import collate
+
+    model.eval()
+    preds, refs, noisy = [], [], []
+    with torch.no_grad():
+        for i in range(0, len(dataset), batch_size):
+            batch = collate([dataset[j] for j in range(i, min(len(dataset), i + batch_size))])
+            outs = run_window(model, batch)
+            preds.append(outs[-1]["output"].numpy())
+            refs.append(batch["reference"][:, -1].numpy())
+            noisy.append(batch["color"][:, -1].numpy())
+    model.train()
+    p, r, n = (np.concatenate(a).transpose(0, 2, 3, 1) for a in (preds, refs, noisy))
+    return {"val_smape": smape(p, r), "val_relmse": relmse(p, r), "val_psnr": psnr(p, r),
+            "noisy_psnr": psnr(n, r), "noisy_smape": smape(n, r), "val_items": int(len(p))}
+
+
+def add_arguments(p):
+    p.add_argument("spec", help="model spec name (models_spec/<name>.toml) or path")
+    add_data(p)
+    p.add_argument("--out", required=True, metavar="RUN", help="run folder to create or resume")
+    p.add_argument("--minutes", type=float, default=None, help="wall-clock budget (default: spec)")
+    p.add_argument("--steps", type=int, default=None, help="optimiser steps (default: spec)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
+    p.add_argument("--batch-size", type=int, default=None)
+    p.add_argument("--crop", type=int, default=None)
+    p.add_argument("--val-fraction", type=float, default=0.2,
+                   help="fraction of scene seeds held out for validation")
+    p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: each epoch)")
+    add_seed(p)
+    add_threads(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def train(spec_name: str, data: str, out: str, minutes: float | None = None,
+          steps: int | None = None, resume: bool = False, batch_size: int | None = None,
+          crop: int | None = None, seed: int = 0, threads: int = 0, val_fraction: float = 0.2,
+          val_every: int = 0, quiet: bool = False) -> dict:
+    """Train and return the final metrics row.  See module docstring."""
+    import torch
+
+    from training.dataset import SequenceDataset, collate
+    from training.specs import build_model, load_spec
+
+    if threads:
+        torch.set_num_threads(threads)
+    run = Path(out)
+    if resume:
+        if not (run / runs.CONFIG_FILE).exists():
+            raise FileNotFoundError(f"{run}: nothing to resume (no {runs.CONFIG_FILE})")
+        config = json.loads((run / runs.CONFIG_FILE).read_text())
+        spec = load_spec(run / runs.SPEC_FILE)
+        if steps is not None:
+            config["steps"] = steps
+        if minutes is not None:
+            config["minutes"] = minutes
+    else:
+        if (run / runs.CHECKPOINT_FILE).exists():
+            raise FileExistsError(f"{run}: already holds a run; use --resume or another --out")
+        spec = load_spec(spec_name)
+        tr = spec.train
+        config = {
+            "spec": spec.name, "data": os.path.abspath(data), "seed": seed,
+            "steps": steps if steps is not None else tr.steps,
+            "minutes": minutes if minutes is not None else tr.minutes,
+            "batch_size": batch_size or tr.batch_size, "crop": crop or tr.crop,
+            "lr": tr.lr, "loss": tr.loss, "spp": list(tr.spp), "window": tr.window,
+            "val_fraction": val_fraction, "val_every": val_every,
+            "torch": torch.__version__, "argv": sys.argv,
+        }
+        spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
+        runs.init_run(run, spec_path, config)
+    if config["loss"] not in LOSSES:
+        raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
+    loss_fn = LOSSES[config["loss"]]
+
+    torch.manual_seed(config["seed"])
+    model = build_model(spec)
+    opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
+    layers = tuple(spec.inputs.layers)
+    train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
+                                spp_choices=config["spp"], window=config["window"],
+                                seed=config["seed"], val_fraction=config["val_fraction"])
+    val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
+                              spp_choices=config["spp"], window=config["window"], augment=False,
+                              val_fraction=config["val_fraction"])
+    bs = config["batch_size"]
+    steps_per_epoch = max(1, len(train_set) // bs)
+    step, epoch, pos, elapsed = 0, 0, 0, 0.0
+    if resume and (run / runs.CHECKPOINT_FILE).exists():
+        ckpt = torch.load(run / runs.CHECKPOINT_FILE, weights_only=False)
+        model.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        step, epoch, pos, elapsed = ckpt["step"], ckpt["epoch"], ckpt["pos"], ckpt["elapsed"]
+        torch.set_rng_state(ckpt["torch_rng"])
+
+    def save():
+        runs.save_checkpoint(run, {"model": model.state_dict(), "optimizer": opt.state_dict(),
+                                   "step": step, "epoch": epoch, "pos": pos, "elapsed": elapsed,
+                                   "torch_rng": torch.get_rng_state(), "spec": spec.name})
+
+    budget_s = None if config["minutes"] is None else 60.0 * config["minutes"]
+    bar = None
+    if not quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config["steps"], initial=step, desc=f"train {spec.name}", unit="step",
+                   file=sys.stderr, dynamic_ncols=True)
+    model.train()
+    last = {}
+    t_start = time.perf_counter() - elapsed
+    while step < config["steps"] and (budget_s is None or elapsed < budget_s):
+        train_set.set_epoch(epoch)
+        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(
+            config["seed"] * 100003 + epoch)).tolist()
+        while pos < steps_per_epoch and step < config["steps"]:
+            batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
+            outs = run_window(model, batch)
+            loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept)")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            pos += 1
+            elapsed = time.perf_counter() - t_start
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{float(loss):.4f}", epoch=epoch)
+            if config["val_every"] and step % config["val_every"] == 0:
+                last = _validate(run, model, val_set, step, epoch, elapsed, float(loss))
+                save()
+            if budget_s is not None and elapsed >= budget_s:
+                break
+        if pos >= steps_per_epoch:
+            pos = 0
+            epoch += 1
+            if not config["val_every"]:
+                last = _validate(run, model, val_set, step, epoch, elapsed, float(loss))
+            save()
+    if bar is not None:
+        bar.close()
+    save()
+    last = _validate(run, model, val_set, step, epoch, elapsed, None, final=True)
+    return last
+
+
+def _validate(run, model, val_set, step, epoch, elapsed, loss, final=False) -> dict:
+    row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
+           "final": final, **evaluate(model, val_set)}
+    runs.append_metrics(run, row)
+    print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
+          f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)
+    return row
+
+
+def main(args) -> int:
+    if args.minutes is not None and args.minutes <= 0:
+        raise ValueError("--minutes must be positive")
+    row = train(args.spec, args.data, args.out, minutes=args.minutes, steps=args.steps,
+                resume=args.resume, batch_size=args.batch_size, crop=args.crop, seed=args.seed,
+                threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
+                quiet=args.quiet)
+    print(json.dumps(row, indent=2))
+    return 0
