@@ -1,0 +1,255 @@
+"""The runtime denoise API: load an mcdenoise ONNX file and denoise a sequence frame by frame.
+
+    den = Denoiser.load("models/wskpn-3.onnx")
+    for frame in frames:            # runtime.frames.Frame, or a dict of (H, W, C) arrays
+        image = den(frame)          # (H, W, 3) float32 linear HDR
+    den.reset()                     # e.g. before an unrelated sequence
+
+The driver knows nothing about any one method: the file's contract (metadata) says which
+inputs are frame layers, which are temporal state, and which stages the graph has.  State is
+kept here: after each frame the model's ``next_<name>`` outputs and the frame's guide buffers
+(world position, world normal, depth) are stored; at the next frame they are reprojected with
+the frame's motion vectors and a consistency test (:mod:`runtime.temporal`) and fed back.
+
+Bad input never crashes with a traceback and never reaches the state: non-finite, negative and
+huge radiance is sanitised (counted in :attr:`Denoiser.report`, said once per kind); a missing
+layer or wrong shape raises :class:`runtime.frames.FrameError` naming it; a resolution change
+or a camera cut (``meta["cut"]``) resets the state (said once per event).  Non-finite model
+output, should it happen, is replaced by the sanitised input and the state is reset.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from runtime import timing
+from runtime.contract import parse_contract
+from runtime.frames import Frame, FrameError
+from runtime.inputs import SanitizeReport, frame_inputs
+from runtime.temporal import reproject
+
+#: Guide layers stored for the consistency test, when the frame has them.
+GUIDE_LAYERS = ("depth", "position", "normal")
+
+
+class ModelFileError(ValueError):
+    """The model file is missing, not ONNX, corrupt, or not an mcdenoise model."""
+
+
+@dataclass
+class Report:
+    """What happened to the input so far: sanitised values, state resets, messages."""
+
+    frames: int = 0
+    sanitized_frames: int = 0
+    resets: list = field(default_factory=list)
+    messages: list = field(default_factory=list)
+
+
+def _as_frame(frame) -> Frame:
+    if isinstance(frame, Frame):
+        return frame
+    if isinstance(frame, dict):
+        if "color" not in frame:
+            raise FrameError("frame: missing layer 'color'")
+        known = {k: v for k, v in frame.items() if k in Frame.__dataclass_fields__}
+        return Frame(**{k: (np.asarray(v, dtype=np.float32) if k not in ("meta", "path") else v)
+                        for k, v in known.items()})
+    if isinstance(frame, np.ndarray):
+        return Frame(color=np.asarray(frame, dtype=np.float32))
+    raise FrameError(f"frame: expected a Frame, a dict of layers or an (H, W, 3) array, got {type(frame).__name__}")
+
+
+class Denoiser:
+    """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
+
+    def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None):
+        self.session = session
+        self.contract = contract
+        self.path = path
+        self._profile_path = profile_path
+        self._log = log if log is not None else (lambda msg: print(f"mcdenoise: {msg}", file=sys.stderr))
+        self.report = Report()
+        self.timings: list[dict[str, float]] = []
+        self._said: set[str] = set()
+        self._state: dict[str, np.ndarray] | None = None
+        self._guides: dict[str, np.ndarray] | None = None
+        self._size: tuple[int, int] | None = None
+        names = {i.name for i in session.get_inputs()}
+        self.frame_layers = [i["layer"] for i in contract.inputs if i["name"] in names and i.get("layer")]
+        self._input_name = {i["layer"]: i["name"] for i in contract.inputs if i.get("layer")}
+        self.graph_stages = [s["name"] for s in contract.stages]
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
+             profile: bool = False, log=None) -> "Denoiser":
+        """Open an mcdenoise ONNX file.
+
+        Args:
+          providers: onnxruntime execution providers (default: CPU).
+          threads: intra-op threads (0: onnxruntime default).
+          profile: record per-node times so :meth:`stage_table` can split the graph by stage.
+        Raises ModelFileError for a missing, corrupt or foreign file.
+        """
+        import onnxruntime as ort
+
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise ModelFileError(f"{path}: no such model file")
+        so = ort.SessionOptions()
+        if threads:
+            so.intra_op_num_threads = threads
+        so.log_severity_level = 3
+        prof = None
+        if profile:
+            so.enable_profiling = True
+            so.profile_file_prefix = os.path.join(tempfile.mkdtemp(prefix="mcdenoise-prof-"), "ort")
+        try:
+            sess = ort.InferenceSession(path, so, providers=providers or ["CPUExecutionProvider"])
+        except Exception as e:
+            raise ModelFileError(f"{path}: not a loadable ONNX model ({str(e).splitlines()[0][:200]})") from None
+        try:
+            contract = parse_contract(sess.get_modelmeta().custom_metadata_map)
+        except ValueError as e:
+            raise ModelFileError(f"{path}: {e}") from None
+        return cls(sess, contract, path, profile_path=prof, log=log)
+
+    # ------------------------------------------------------------------ state
+    def reset(self, reason: str | None = None) -> None:
+        """Drop the temporal state; the next frame starts a new history."""
+        if self._state is not None and reason:
+            self.report.resets.append((self.report.frames, reason))
+            self._say(f"frame {self.report.frames}: {reason}: temporal state reset", once_key=None)
+        self._state = None
+        self._guides = None
+
+    def _say(self, msg: str, once_key: str | None) -> None:
+        if once_key is not None:
+            if once_key in self._said:
+                return
+            self._said.add(once_key)
+        self.report.messages.append(msg)
+        self._log(msg)
+
+    # ------------------------------------------------------------------ denoise
+    def __call__(self, frame) -> np.ndarray:
+        """Denoise one frame of the current sequence; returns (H, W, 3) float32 linear HDR."""
+        tm = timing.FrameTimer()
+        with tm.stage(timing.PREPROCESS):
+            fr = _as_frame(frame)
+            for layer in self.frame_layers:
+                fr.layer(layer)  # FrameError naming the layer if absent
+            try:
+                fr.validate()
+            except FrameError:
+                raise
+            h, w = fr.size
+            if fr.color.ndim != 3 or fr.color.shape[2] != 3:
+                raise FrameError(f"{fr.path or 'frame'}: color must be (H, W, 3), got {fr.color.shape}")
+            if self._size is not None and (h, w) != self._size:
+                self.reset(f"resolution changed from {self._size[1]}x{self._size[0]} to {w}x{h}")
+            self._size = (h, w)
+            if fr.meta.get("cut") and self._state is not None:
+                self.reset("camera cut")
+            rep = SanitizeReport()
+            feeds_by_layer = frame_inputs(fr, self.frame_layers, rep)
+            if rep.total:
+                self.report.sanitized_frames += 1
+                kinds = ",".join(sorted(set(rep.nonfinite) | set(rep.negative) | set(rep.clamped)))
+                self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
+                          "further sanitising is counted in the report", once_key="sanitize:" + kinds)
+            guides = self._guide_buffers(fr)
+        with tm.stage(timing.REPROJECT):
+            feeds = {self._input_name[l]: a for l, a in feeds_by_layer.items()}
+            state_in = self._state_inputs(fr, guides, h, w)
+            feeds.update(state_in)
+        with tm.stage(timing.GRAPH):
+            outs = self.session.run(None, feeds)
+        with tm.stage(timing.POSTPROCESS):
+            named = dict(zip([o.name for o in self.session.get_outputs()], outs))
+            image = named["output"][0].transpose(1, 2, 0)
+            if not np.isfinite(image).all():
+                bad = ~np.isfinite(image)
+                image = np.where(bad, feeds_by_layer["color"][0].transpose(1, 2, 0), image)
+                self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
+                          "values; replaced by the input and state reset", once_key=None)
+                named = None
+            image = np.ascontiguousarray(image, dtype=np.float32)
+        with tm.stage(timing.STATE_UPDATE):
+            if named is None:
+                self._state, self._guides = None, None
+            else:
+                self._state = {}
+                for st in self.contract.state:
+                    arr = named[st["output"]]
+                    self._state[st["name"]] = np.where(np.isfinite(arr), arr, 0.0).astype(np.float32)
+                self._guides = guides
+        tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
+        self.timings.append(tm.ms)
+        self.report.frames += 1
+        return image
+
+    def _guide_buffers(self, fr: Frame) -> dict[str, np.ndarray]:
+        rep = SanitizeReport()
+        g = {}
+        for name in GUIDE_LAYERS:
+            arr = getattr(fr, name)
+            if arr is not None:
+                from runtime.inputs import sanitize_array
+
+                g[name] = np.ascontiguousarray(sanitize_array(arr, False, name, rep).transpose(2, 0, 1)[None])
+        if "depth" not in g:
+            # Without depth there is no consistency test: treat every pixel as a hit at unit
+            # distance so history follows motion only (documented for plain colour input).
+            g["depth"] = np.ones((1, 1, *fr.size), np.float32)
+        return g
+
+    def _state_inputs(self, fr: Frame, guides, h: int, w: int) -> dict[str, np.ndarray]:
+        feeds = {}
+        if not self.contract.state:
+            return feeds
+        if self._state is None:
+            for st in self.contract.state:
+                feeds[st["input"]] = np.zeros((1, st["channels"], h, w), np.float32)
+            feeds[self.contract.history] = np.zeros((1, 1, h, w), np.float32)
+            return feeds
+        if fr.motion is not None:
+            motion = np.nan_to_num(fr.motion, nan=0.0, posinf=0.0, neginf=0.0).transpose(2, 0, 1)[None]
+        else:
+            self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
+            motion = np.zeros((1, 2, h, w), np.float32)
+        names = [st["name"] for st in self.contract.state]
+        warped, history = reproject([self._state[n] for n in names], motion.astype(np.float32),
+                                    guides, self._guides)
+        for st, arr in zip(self.contract.state, warped):
+            feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
+        feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)
+        return feeds
+
+    # ------------------------------------------------------------------ timing
+    def stage_times(self) -> list[dict[str, float]]:
+        """Per-frame {stage: ms}: driver stages, graph stages (if profiling), graph wall, total.
+
+        With profiling on this ends the profiler (call once, after the sequence)."""
+        rows = [dict(r) for r in self.timings]
+        if self.session.get_session_options().enable_profiling:
+            path = self.session.end_profiling()
+            per = timing.graph_stage_times(path, self.graph_stages)
+            for r, g in zip(rows, per):
+                r.update(g)
+        return rows
+
+    def stage_table(self, skip: int = 1, device: str = "CPU") -> str:
+        """Paper-style table of median per-stage ms (first ``skip`` frames are warm-up)."""
+        rows = self.stage_times()
+        use = rows[skip:] if len(rows) > skip else rows
+        med = timing.medians(use)
+        h, w = self._size or (0, 0)
+        order = list(timing.DRIVER_STAGES_BEFORE) + self.graph_stages + list(timing.DRIVER_STAGES_AFTER)
+        title = f"{self.contract.spec_name}: per-stage time"
+        return timing.format_table(med, order, self.contract.paper, f"{w}x{h}", title, len(use), device)

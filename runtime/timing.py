@@ -1,0 +1,95 @@
+"""Per-stage timing: driver stages by wall clock, graph stages from onnxruntime's profiler.
+
+The exported graph names its nodes ``/<stage>/...`` (the model's stage submodules).  With
+profiling on, onnxruntime records every kernel's duration; :func:`graph_stage_times` sums
+them per stage and per run.  onnxruntime's optimiser fuses nodes and inserts layout
+reorders; a fused node keeps a name derived from its scoped output, and an unscoped
+inserted node is charged to the stage of the node that ran just before it.
+
+Stage names are defined once: graph stages come from the model's contract, driver stages
+are :data:`DRIVER_STAGES`.
+"""
+from __future__ import annotations
+
+import json
+import time
+from contextlib import contextmanager
+
+import numpy as np
+
+#: Stages the driver runs itself, in the order they happen around the graph.
+PREPROCESS, REPROJECT, POSTPROCESS, STATE_UPDATE = "preprocess", "reproject", "postprocess", "state update"
+DRIVER_STAGES_BEFORE = (PREPROCESS, REPROJECT)
+DRIVER_STAGES_AFTER = (POSTPROCESS, STATE_UPDATE)
+#: Whole-frame wall time row, and the graph's wall time (what onnxruntime's run() took).
+TOTAL, GRAPH = "total", "graph (wall)"
+
+
+class FrameTimer:
+    """Collects stage durations (ms) of one frame."""
+
+    def __init__(self):
+        self.ms: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
+
+
+def graph_stage_times(profile_path: str, stages: list[str]) -> list[dict[str, float]]:
+    """Per-run {stage: ms} from an onnxruntime profile JSON file (one dict per ``run()``)."""
+    with open(profile_path) as fh:
+        events = json.load(fh)
+    runs = sorted((e for e in events if e.get("name") == "model_run"), key=lambda e: e["ts"])
+    nodes = sorted((e for e in events if e.get("cat") == "Node" and e.get("name", "").endswith("_kernel_time")),
+                   key=lambda e: e["ts"])
+    out = []
+    j = 0
+    for r in runs:
+        start, end = r["ts"], r["ts"] + r["dur"]
+        per = {s: 0.0 for s in stages}
+        current = stages[0] if stages else None
+        while j < len(nodes) and nodes[j]["ts"] < start:
+            j += 1
+        while j < len(nodes) and nodes[j]["ts"] <= end:
+            name = nodes[j]["name"]
+            for s in stages:
+                if f"/{s}/" in name:
+                    current = s
+                    break
+            if current is not None:
+                per[current] += nodes[j]["dur"] / 1e3
+            j += 1
+        out.append(per)
+    return out
+
+
+def medians(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Median per key over frames (keys missing in a row count as absent, not 0)."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    return {k: float(np.median([r[k] for r in rows if k in r])) for k in keys}
+
+
+def format_table(ours: dict[str, float], stages: list[str], paper: dict | None, resolution: str,
+                 title: str, n_frames: int, device: str) -> str:
+    """A Table-3-shaped text table: stage | ours (median ms) | paper (ms on its GPU)."""
+    paper = paper or {}
+    pdev = paper.get("device", "")
+    pres = paper.get("resolution", "")
+    lines = [title,
+             f"median over {n_frames} frames at {resolution} on {device}; paper: {pdev} at {pres}".rstrip(),
+             f"{'stage':<20}{'ours ms':>12}{'paper ms':>12}", "-" * 44]
+    for s in stages + [GRAPH, TOTAL]:
+        if s not in ours:
+            continue
+        key = s.replace(" (wall)", "").replace(" ", "_") + "_ms"
+        p = paper.get(key)
+        pstr = f"{p:>12.2f}" if isinstance(p, (int, float)) else f"{'-':>12}"
+        if s in (GRAPH, TOTAL):
+            lines.append("-" * 44)
+        lines.append(f"{s:<20}{ours[s]:>12.2f}{pstr}")
+    return "\n".join(lines)
