@@ -76,6 +76,7 @@ class Denoiser:
         self.report = Report()
         self.timings: list[dict[str, float]] = []
         self._said: set[str] = set()
+        self._profile_rows: list | None = None
         self._state: dict[str, np.ndarray] | None = None
         self._guides: dict[str, np.ndarray] | None = None
         self._size: tuple[int, int] | None = None
@@ -238,9 +239,10 @@ class Denoiser:
         With profiling on this ends the profiler (call once, after the sequence)."""
         rows = [dict(r) for r in self.timings]
         if self.session.get_session_options().enable_profiling:
-            path = self.session.end_profiling()
-            per = timing.graph_stage_times(path, self.graph_stages)
-            for r, g in zip(rows, per):
+            if self._profile_rows is None:
+                path = self.session.end_profiling()
+                self._profile_rows = timing.graph_stage_times(path, self.graph_stages)
+            for r, g in zip(rows, self._profile_rows):
                 r.update(g)
         return rows
 

@@ -365,6 +365,41 @@ def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None
     return fr
 
 
+def write_rgb(path: str | os.PathLike, image: np.ndarray, meta: dict | None = None) -> None:
+    """Write an (H, W, 3) image as a plain R,G,B float32 EXR (readable by any EXR tool and by
+    :func:`read_rgb`)."""
+    import OpenEXR
+
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise FrameError(f"{path}: expected an (H, W, 3) image, got {image.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if meta:
+        header[META_KEY] = json.dumps(meta, sort_keys=True)
+    chans = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
+    tmp = f"{os.fspath(path)}.tmp"
+    OpenEXR.File(header, chans).write(tmp)
+    os.replace(tmp, path)
+
+
+def write_png(path: str | os.PathLike, image01: np.ndarray) -> None:
+    """Write an (H, W, 3) image with values in [0, 1] as an 8-bit PNG (no imaging library)."""
+    import struct
+    import zlib
+
+    img = (np.clip(np.nan_to_num(image01), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    h, w = img.shape[:2]
+    raw = b"".join(b"\x00" + img[y].tobytes() for y in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+    with open(path, "wb") as fh:
+        fh.write(png)
+
+
 def describe(path: str | os.PathLike) -> str:
     """Human-readable summary of a frame file (``mcdenoise inspect``)."""
     path = os.fspath(path)
