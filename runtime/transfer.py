@@ -39,13 +39,24 @@ def _clamp01(x):
     return x.clamp(0.0, 1.0)
 
 
+#: Floor applied before fractional powers: x**p has an infinite slope at 0, so torch would
+#: produce inf/NaN gradients there; clamping to this floor gives a zero gradient instead
+#: and changes values by < 1e-12.
+POW_FLOOR = 1e-30
+
+
+def _pow_floor(x, p):
+    if xp(x) is np:
+        return np.maximum(x, POW_FLOOR) ** p
+    return x.clamp(min=POW_FLOOR) ** p
+
+
 def gamma(x):
     """LDR gamma curve: ``clip(x, 0, 1) ** (1/2.2)``. Input linear radiance, output [0, 1].
 
-    Values above 1 saturate (the paper's LDR input); the clip keeps the pow differentiable
-    away from 0 for torch (a tiny floor avoids the infinite slope of x**(1/2.2) at 0).
+    Values above 1 saturate (the paper's LDR input).
     """
-    return (_clamp01(x) + 1e-8) ** (1.0 / GAMMA)
+    return _pow_floor(_clamp01(x), 1.0 / GAMMA)
 
 
 def gamma_inv(y):
@@ -66,7 +77,7 @@ def log1p_inv(y):
 def reinhard_gamma(x):
     """ANF Eq. 15: ``(x / (1 + x)) ** (1/2.4)`` for x >= 0. Output [0, 1)."""
     x = _clamp0(x)
-    return (x / (1.0 + x) + 1e-12) ** (1.0 / REINHARD_GAMMA)
+    return _pow_floor(x / (1.0 + x), 1.0 / REINHARD_GAMMA)
 
 
 def identity(x):

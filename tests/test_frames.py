@@ -1,0 +1,130 @@
+"""Frame format: round trip, the plain (OIDN-style) reader, and clear errors on bad files."""
+import numpy as np
+import OpenEXR
+import pytest
+
+from runtime import frames as F
+
+
+def _frame(h=6, w=7, spp=2, seed=0):
+    rng = np.random.default_rng(seed)
+    r = lambda *s: rng.random(s, dtype=np.float32)
+    return F.Frame(color=r(h, w, 3), albedo=r(h, w, 3), normal=r(h, w, 3), depth=r(h, w, 1),
+                   position=r(h, w, 3), motion=r(h, w, 2), valid=np.ones((h, w, 1), np.float32),
+                   reference=r(h, w, 3), samples=r(spp, h, w, len(F.SAMPLE_FEATURES)),
+                   meta={"scene_seed": 7, "frame": 3})
+
+
+def test_round_trip_is_exact(tmp_path):
+    fr = _frame()
+    F.write_frame(tmp_path / "f.exr", fr)
+    back = F.read_frame(tmp_path / "f.exr")
+    for layer in F.PIXEL_LAYERS:
+        np.testing.assert_array_equal(getattr(back, layer.name), getattr(fr, layer.name))
+    np.testing.assert_array_equal(back.samples, fr.samples)
+    assert back.meta["scene_seed"] == 7 and back.meta["spp"] == 2
+    assert back.spp == 2 and back.size == (6, 7)
+    assert F.read_frame(tmp_path / "f.exr", samples=1).spp == 1
+    assert F.read_frame(tmp_path / "f.exr", samples=False).samples is None
+
+
+def test_sample_groups_cover_every_feature_once():
+    covered = [i for s in F.SAMPLE_GROUPS.values() for i in range(s.start, s.stop)]
+    assert covered == list(range(len(F.SAMPLE_FEATURES)))
+    fr = _frame()
+    np.testing.assert_array_equal(fr.sample_feature("motion"), fr.samples[..., 21:23])
+
+
+def test_pixel_means_from_samples():
+    fr = _frame(spp=3)
+    px = F.pixel_means(fr.samples)
+    np.testing.assert_allclose(px["color"], fr.samples[..., 0:3].mean(0), rtol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(px["normal"], axis=-1), 1.0, rtol=1e-5)
+
+
+def test_missing_file_names_it(tmp_path):
+    with pytest.raises(F.FrameError, match="nope.exr: no such file"):
+        F.read_frame(tmp_path / "nope.exr")
+
+
+def test_missing_channel_names_file_and_channel(tmp_path):
+    fr = _frame()
+    fr.albedo = None
+    F.write_frame(tmp_path / "f.exr", fr)
+    with pytest.raises(F.FrameError, match=r"f\.exr: missing channel 'albedo\.R'"):
+        F.read_frame(tmp_path / "f.exr", require=("color", "albedo"))
+    with pytest.raises(F.FrameError, match="missing layer 'albedo'"):
+        F.read_frame(tmp_path / "f.exr").layer("albedo")
+
+
+def test_partially_missing_layer_names_the_channel(tmp_path):
+    h, w = 4, 5
+    ch = {f"color.{c}": np.ones((h, w), np.float32) for c in "RGB"}
+    ch["normal.X"] = np.ones((h, w), np.float32)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
+        str(tmp_path / "p.exr"))
+    with pytest.raises(F.FrameError, match=r"p\.exr: missing channel 'normal\.Y'"):
+        F.read_frame(tmp_path / "p.exr")
+
+
+def test_truncated_file_is_a_clear_error(tmp_path):
+    F.write_frame(tmp_path / "f.exr", _frame(h=32, w=32))
+    data = (tmp_path / "f.exr").read_bytes()
+    (tmp_path / "t.exr").write_bytes(data[: len(data) // 3])
+    with pytest.raises(F.FrameError, match=r"t\.exr: .*(truncated|not a readable)"):
+        F.read_frame(tmp_path / "t.exr")
+    (tmp_path / "junk.exr").write_bytes(b"not an exr at all")
+    with pytest.raises(F.FrameError, match=r"junk\.exr: not a readable OpenEXR"):
+        F.read_frame(tmp_path / "junk.exr")
+
+
+def test_wrong_dtype_names_channel(tmp_path):
+    h, w = 4, 5
+    ch = {f"color.{c}": np.ones((h, w), np.float32) for c in "RG"}
+    ch["color.B"] = np.ones((h, w), np.uint32)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
+        str(tmp_path / "u.exr"))
+    with pytest.raises(F.FrameError, match=r"u\.exr: channel 'color\.B' has dtype uint32"):
+        F.read_frame(tmp_path / "u.exr")
+
+
+def test_half_channels_are_accepted_as_float32(tmp_path):
+    h, w = 4, 5
+    ch = {c: np.full((h, w), 0.5, np.float16) for c in "RGB"}
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
+        str(tmp_path / "h.exr"))
+    img = F.read_rgb(tmp_path / "h.exr")
+    assert img.dtype == np.float32 and img.shape == (h, w, 3) and np.all(img == 0.5)
+
+
+def test_plain_oidn_style_inputs(tmp_path):
+    rng = np.random.default_rng(1)
+    col, alb = rng.random((5, 6, 3), dtype=np.float32), rng.random((5, 6, 3), dtype=np.float32)
+    F.write_rgb(tmp_path / "color.exr", col)
+    F.write_rgb(tmp_path / "albedo.exr", alb)
+    # PFM is stored bottom-to-top, little-endian when the scale is negative.
+    with open(tmp_path / "normal.pfm", "wb") as fh:
+        fh.write(b"PF\n6 5\n-1.0\n" + col[::-1].astype("<f4").tobytes())
+    fr = F.read_plain(tmp_path / "color.exr", tmp_path / "albedo.exr", tmp_path / "normal.pfm")
+    np.testing.assert_array_equal(fr.color, col)
+    np.testing.assert_array_equal(fr.albedo, alb)
+    np.testing.assert_array_equal(fr.normal, col)
+    F.write_rgb(tmp_path / "small.exr", col[:4])
+    with pytest.raises(F.FrameError, match="albedo image is 6x4, colour .* is 6x5"):
+        F.read_plain(tmp_path / "color.exr", tmp_path / "small.exr")
+
+
+def test_validate_rejects_wrong_shapes():
+    fr = _frame()
+    fr.depth = np.zeros((6, 7, 3), np.float32)
+    with pytest.raises(F.FrameError, match=r"layer 'depth' has shape \(6, 7, 3\), expected \(6, 7, 1\)"):
+        fr.validate()
+
+
+def test_describe_and_png(tmp_path):
+    F.write_frame(tmp_path / "f.exr", _frame())
+    text = F.describe(tmp_path / "f.exr")
+    assert "per-sample layers: 2 samples" in text and "scene_seed: 7" in text
+    F.write_png(tmp_path / "a.png", np.full((3, 4, 3), 0.5))
+    data = (tmp_path / "a.png").read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and b"IHDR" in data
