@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime import timing
+from runtime import timing, transfer
 from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
 from runtime.inputs import SanitizeReport, frame_inputs
@@ -83,6 +83,7 @@ class Denoiser:
         names = {i.name for i in session.get_inputs()}
         self.frame_layers = [i["layer"] for i in contract.inputs if i["name"] in names and i.get("layer")]
         self._input_name = {i["layer"]: i["name"] for i in contract.inputs if i.get("layer")}
+        self._input_transfer = {i["layer"]: i.get("transfer", "linear") for i in contract.inputs if i.get("layer")}
         self.graph_stages = [s["name"] for s in contract.stages]
 
     # ------------------------------------------------------------------ loading
@@ -166,7 +167,8 @@ class Denoiser:
                           "further sanitising is counted in the report", once_key="sanitize:" + kinds)
             guides = self._guide_buffers(fr)
         with tm.stage(timing.REPROJECT):
-            feeds = {self._input_name[l]: a for l, a in feeds_by_layer.items()}
+            feeds = {self._input_name[l]: transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
+                     for l, a in feeds_by_layer.items()}
             state_in = self._state_inputs(fr, guides, h, w)
             feeds.update(state_in)
         with tm.stage(timing.GRAPH):

@@ -138,7 +138,7 @@ def add_arguments(p):
 def run(models, sizes, frames=5, warmup=2, threads=0, torch_too=True, oidn=True, out="docs/results",
         log=print) -> list[dict]:
     from runtime.denoiser import Denoiser
-    from training.specs import build_model, load_spec_text
+    from training.specs import build_model, parse_spec
 
     rows = []
     device = cpu_name()
@@ -157,7 +157,7 @@ def run(models, sizes, frames=5, warmup=2, threads=0, torch_too=True, oidn=True,
             stages = [s["name"] for s in c.stages]
             torch_med = {}
             if torch_too:
-                spec = load_spec_text(c.spec_toml)
+                spec = parse_spec(c.spec_toml, f"{path} (embedded spec)")
                 model = build_model(spec).eval().deploy()
                 torch_med = bench_torch(model, stages, w, h, frames, warmup)
             order = list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER) + [timing.GRAPH, timing.TOTAL]

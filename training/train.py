@@ -39,11 +39,12 @@ def _l1(pred, ref):
 LOSSES = {"smape": smape, "l1": _l1, "l1_gamma": _l1_gamma}
 
 
-def model_inputs(model, frame: dict, states: dict | None, history):
+def model_inputs(model, frame: dict, states: dict | None, history, state_channels: dict):
     """Positional inputs for ``model`` at one frame.
 
     frame: name -> (N, C, H, W) tensors for this frame; states: state name -> reprojected
-    (N, C, H, W) tensor (None on the first frame: zeros); history: (N, 1, H, W).
+    (N, C, H, W) tensor (None on the first frame: zeros); history: (N, 1, H, W);
+    state_channels: state name -> channels (from the spec).
     """
     import torch
 
@@ -55,7 +56,7 @@ def model_inputs(model, frame: dict, states: dict | None, history):
         elif name.startswith("prev_"):
             st = None if states is None else states.get(name[5:])
             if st is None:
-                ch = model.state_channels[name[5:]]
+                ch = state_channels[name[5:]]
                 st = torch.zeros(ref.shape[0], ch, *ref.shape[2:], dtype=ref.dtype)
             args.append(st)
         else:
@@ -65,7 +66,7 @@ def model_inputs(model, frame: dict, states: dict | None, history):
     return args
 
 
-def run_window(model, batch: dict):
+def run_window(model, batch: dict, state_channels: dict):
     """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts."""
     import torch
 
@@ -83,13 +84,13 @@ def run_window(model, batch: dict):
             names = [n for n in model.output_names if n.startswith("next_")]
             warped, history = reproject([outputs[-1][n] for n in names], frame["motion"], guides, prev_guides)
             states = {n[5:]: s for n, s in zip(names, warped)}
-        out = model(*model_inputs(model, frame, states, history))
+        out = model(*model_inputs(model, frame, states, history, state_channels))
         outputs.append(dict(zip(model.output_names, out)))
         prev_guides = guides
     return outputs
 
 
-def evaluate(model, dataset, batch_size: int = 4) -> dict:
+def evaluate(model, dataset, state_channels: dict, batch_size: int = 4) -> dict:
     """Validation metrics on the last frame of every window (temporal state warmed up):
     SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
     import torch
@@ -101,7 +102,7 @@ def evaluate(model, dataset, batch_size: int = 4) -> dict:
     with torch.no_grad():
         for i in range(0, len(dataset), batch_size):
             batch = collate([dataset[j] for j in range(i, min(len(dataset), i + batch_size))])
-            outs = run_window(model, batch)
+            outs = run_window(model, batch, state_channels)
             preds.append(outs[-1]["output"].numpy())
             refs.append(batch["reference"][:, -1].numpy())
             noisy.append(batch["color"][:, -1].numpy())
@@ -169,6 +170,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if config["loss"] not in LOSSES:
         raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
     loss_fn = LOSSES[config["loss"]]
+    state_channels = {s.name: s.channels for s in spec.state}
 
     torch.manual_seed(config["seed"])
     model = build_model(spec)
@@ -211,7 +213,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
             batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
-            outs = run_window(model, batch)
+            outs = run_window(model, batch, state_channels)
             loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept)")
@@ -225,7 +227,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                 bar.update(1)
                 bar.set_postfix(loss=f"{float(loss):.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
-                last = _validate(run, model, val_set, step, epoch, elapsed, float(loss))
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, float(loss))
                 save()
             if budget_s is not None and elapsed >= budget_s:
                 break
@@ -233,18 +235,18 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"]:
-                last = _validate(run, model, val_set, step, epoch, elapsed, float(loss))
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, float(loss))
             save()
     if bar is not None:
         bar.close()
     save()
-    last = _validate(run, model, val_set, step, epoch, elapsed, None, final=True)
+    last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, None, final=True)
     return last
 
 
-def _validate(run, model, val_set, step, epoch, elapsed, loss, final=False) -> dict:
+def _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss, final=False) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
-           "final": final, **evaluate(model, val_set)}
+           "final": final, **evaluate(model, val_set, state_channels)}
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)
