@@ -156,7 +156,10 @@ class SequenceDataset:
         fr = self._cache.get(path)
         if fr is None:
             fr = read_frame(path, require=("color", "reference", "motion", "samples"))
-            fr.samples = np.ascontiguousarray(fr.samples)
+            # Pixel models need only the features pixel_means() reads (radiance .. position,
+            # the first 13); keeping just those halves the cache for big training sets.
+            keep = len(fr.samples[0, 0, 0]) if self.samples else SAMPLE_GROUPS["position"].stop
+            fr.samples = np.ascontiguousarray(fr.samples[..., :keep])
             self._cache[path] = fr
         return fr
 
