@@ -1,0 +1,185 @@
+"""The onnxruntime driver: temporal state, parity with the training unroll, bad input.
+
+Uses a randomly initialised (seeded) wskpn-3 exported to ONNX: behaviour, not quality, is
+under test here.  Parity: the driver (numpy reprojection + onnxruntime) and the training
+unroll (torch reprojection + torch model) give the same output for the same 2-frame sequence.
+"""
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from runtime.denoiser import Denoiser, ModelFileError
+from runtime.frames import Frame, FrameError, write_frame
+from runtime.inputs import frame_inputs
+from training.bench import synthetic_frame
+
+SPEC = "wskpn-3"
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    from export.onnx_export import export_model
+    from training.specs import build_model, load_spec
+
+    torch.manual_seed(0)
+    spec = load_spec(SPEC)
+    model = build_model(spec).eval()
+    path = tmp_path_factory.mktemp("model") / f"{SPEC}.onnx"
+    export_model(spec, model, path)
+    return path, spec, model
+
+
+def _frame(t, w=24, h=20, **kw):
+    f = synthetic_frame(w, h, t)
+    f.update(kw)
+    return Frame(**f)
+
+
+def test_denoise_shapes_and_state(model_file):
+    path, _, _ = model_file
+    den = Denoiser.load(path, log=lambda m: None)
+    out0 = den(_frame(0))
+    assert out0.shape == (20, 24, 3) and out0.dtype == np.float32 and np.isfinite(out0).all()
+    out1 = den(_frame(1))
+    fresh = Denoiser.load(path, log=lambda m: None)
+    alone = fresh(_frame(1))
+    # The history from frame 0 changes frame 1's result; after reset() it no longer does.
+    assert np.abs(out1 - alone).max() > 1e-4
+    den.reset()
+    np.testing.assert_allclose(den(_frame(1)), alone, rtol=1e-5, atol=1e-6)
+
+
+def test_driver_matches_training_unroll(model_file):
+    """Same two frames through the runtime driver and through training.train.run_window."""
+    from training.train import run_window
+
+    path, spec, model = model_file
+    den = Denoiser.load(path, log=lambda m: None)
+    frames = [_frame(0), _frame(1)]
+    outs = [den(f) for f in frames]
+    batch = {}
+    for f in frames:
+        arrays = frame_inputs(f, list(spec.inputs.layers) + ["motion", "position"])
+        arrays["normal_world"] = f.normal.transpose(2, 0, 1)[None].copy()
+        for k, v in arrays.items():
+            batch.setdefault(k, []).append(torch.from_numpy(v))
+    batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}  # (1, T, C, H, W)
+    with torch.no_grad():
+        ref = run_window(model, batch, {s.name: s.channels for s in spec.state})
+    for t in range(2):
+        np.testing.assert_allclose(outs[t], ref[t]["output"][0].numpy().transpose(1, 2, 0),
+                                   rtol=1e-4, atol=1e-5)
+
+
+def test_nonfinite_and_negative_input_is_sanitised_not_propagated(model_file):
+    path, _, _ = model_file
+    msgs = []
+    den = Denoiser.load(path, log=msgs.append)
+    f = _frame(0)
+    f.color[0, 0] = np.nan
+    f.color[1, 1] = np.inf
+    f.color[2, 2] = -5.0
+    f.albedo[3, 3] = np.nan
+    out = den(f)
+    assert np.isfinite(out).all()
+    assert all(np.isfinite(v).all() for v in den._state.values())
+    assert den.report.sanitized_frames == 1 and any("non-finite" in m for m in msgs)
+    out2 = den(_frame(1))
+    assert np.isfinite(out2).all()
+
+
+def test_missing_layer_and_wrong_shape_are_named(model_file):
+    path, _, _ = model_file
+    den = Denoiser.load(path, log=lambda m: None)
+    f = _frame(0)
+    f.albedo = None
+    with pytest.raises(FrameError, match="missing layer 'albedo'"):
+        den(f)
+    g = _frame(0)
+    g.depth = np.zeros((20, 24, 2), np.float32)
+    with pytest.raises(FrameError, match="layer 'depth' has shape"):
+        den(g)
+    with pytest.raises(FrameError, match="expected a Frame"):
+        den("not a frame")
+
+
+def test_resolution_change_resets_state_and_says_so(model_file):
+    path, _, _ = model_file
+    msgs = []
+    den = Denoiser.load(path, log=msgs.append)
+    den(_frame(0))
+    den(_frame(1))
+    out = den(_frame(2, w=32, h=16))
+    assert out.shape == (16, 32, 3)
+    assert len(den.report.resets) == 1 and "resolution changed from 24x20 to 32x16" in den.report.resets[0][1]
+    fresh = Denoiser.load(path, log=lambda m: None)
+    np.testing.assert_allclose(out, fresh(_frame(2, w=32, h=16)), rtol=1e-5, atol=1e-6)
+
+
+def test_camera_cut_resets(model_file):
+    path, _, _ = model_file
+    den = Denoiser.load(path, log=lambda m: None)
+    den(_frame(0))
+    cut = _frame(1, meta={"cut": True})
+    out = den(cut)
+    assert den.report.resets and den.report.resets[-1][1] == "camera cut"
+    fresh = Denoiser.load(path, log=lambda m: None)
+    np.testing.assert_allclose(out, fresh(_frame(1)), rtol=1e-5, atol=1e-6)
+
+
+def test_foreign_corrupt_and_missing_model_files(tmp_path):
+    with pytest.raises(ModelFileError, match="no such model file"):
+        Denoiser.load(tmp_path / "none.onnx")
+    (tmp_path / "junk.onnx").write_bytes(b"\x08\x07garbage" * 10)
+    with pytest.raises(ModelFileError, match="not a loadable ONNX model"):
+        Denoiser.load(tmp_path / "junk.onnx")
+    # A valid ONNX file that is not ours.
+    from onnx import TensorProto, helper
+
+    g = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g",
+                          [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+                          [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])])
+    onnx.save(helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)]), tmp_path / "other.onnx")
+    with pytest.raises(ModelFileError, match="not an mcdenoise model"):
+        Denoiser.load(tmp_path / "other.onnx")
+
+
+def test_truncated_model_file(model_file, tmp_path):
+    path, _, _ = model_file
+    data = path.read_bytes()
+    (tmp_path / "cut.onnx").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ModelFileError):
+        Denoiser.load(tmp_path / "cut.onnx")
+
+
+def test_stage_times_cover_graph_stages(model_file):
+    path, spec, _ = model_file
+    den = Denoiser.load(path, profile=True, log=lambda m: None)
+    for t in range(3):
+        den(_frame(t))
+    rows = den.stage_times()
+    assert len(rows) == 3
+    for stage in spec.stages:
+        assert all(stage in r for r in rows)
+    assert sum(rows[-1][s] for s in spec.stages) > 0
+    table = den.stage_table()
+    for stage in ("preprocess", "reproject", "total") + tuple(spec.stages):
+        assert stage in table
+
+
+def test_denoise_command_on_a_sequence(model_file, tmp_path):
+    from runtime.cli import main
+
+    path, _, _ = model_file
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for t in range(3):
+        f = _frame(t)
+        f.reference = f.albedo.copy()
+        write_frame(seq / f"frame_{t:04d}.exr", f)
+    out = tmp_path / "out"
+    assert main(["denoise", "--model", str(path), "--input", str(seq), "--output", str(out), "--png"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"frame_{t:04d}.{e}" for t in range(3) for e in ("exr", "png")]
+    assert main(["denoise", "--model", str(tmp_path / "nope.onnx"), "--input", str(seq),
+                 "--output", str(out)]) == 2
