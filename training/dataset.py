@@ -169,39 +169,46 @@ class SequenceDataset:
             seq_i, t0 = self.starts[rng.integers(len(self.starts))]
         else:
             seq_i, t0 = self.starts[index % len(self.starts)]
-        seq = self.seqs[seq_i]
-        first = self._frame(seq.frames[t0])
+        first = self._frame(self.seqs[seq_i].frames[t0])
         h, w = first.size
         c = min(self.crop, h, w)
         if self.augment:
             y0, x0 = int(rng.integers(h - c + 1)), int(rng.integers(w - c + 1))
-            stored = first.spp
-            choices = [n for n in self.spp_choices if n <= stored] or [stored]
+            choices = [n for n in self.spp_choices if n <= first.spp] or [first.spp]
             n = int(rng.choice(choices))
             k = int(rng.integers(8))
         else:
             y0, x0 = (h - c) // 2, (w - c) // 2
             n = min(max(self.spp_choices), first.spp)
             k = 0
+        return self.make_item(seq_i, t0, y0, x0, c, n, k, rng if self.augment else None)
+
+    def make_item(self, seq_i: int, t0: int, y0: int, x0: int, c: int, n: int, k: int,
+                  rng: np.random.Generator | None = None) -> dict:
+        """The item for sequence ``seq_i`` frames t0..t0+T-1, crop (y0, x0, c), ``n`` samples
+        per pixel (a random subset drawn from ``rng``, else the first n) and symmetry ``k``."""
+        seq = self.seqs[seq_i]
+        h, w = self._frame(seq.frames[t0]).size
         out: dict[str, list] = {}
         for t in range(t0, t0 + self.window):
             fr = self._frame(seq.frames[t])
             if fr.size != (h, w):
-                raise FrameError(f"{fr.path}: size {fr.size} differs from {seq.frames[t0]} {h, w}")
+                raise FrameError(f"{fr.path}: size {fr.size} differs from {seq.frames[t0]} {(h, w)}")
             sub = fr.samples[:, y0:y0 + c, x0:x0 + c]
-            idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if self.augment else np.arange(n)
+            idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if rng is not None else np.arange(n)
             sub = sub[idx]
             px = pixel_means(sub)
+            win = (slice(y0, y0 + c), slice(x0, x0 + c))
             crop = Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"],
-                         depth=px["depth"], position=px["position"],
-                         motion=fr.motion[y0:y0 + c, x0:x0 + c],
-                         reference=fr.reference[y0:y0 + c, x0:x0 + c], meta=fr.meta, path=fr.path)
+                         depth=px["depth"], position=px["position"], motion=fr.motion[win],
+                         valid=None if fr.valid is None else fr.valid[win],
+                         reference=fr.reference[win], meta=fr.meta, path=fr.path)
             report = SanitizeReport()
-            names = tuple(dict.fromkeys(self.layers + ("reference", "motion", "position")))
-            arrays = frame_inputs(crop, names, report)
+            names = self.layers + ("reference", "motion", "position", "normal", "depth")
+            if crop.valid is not None:
+                names += ("valid",)
+            arrays = frame_inputs(crop, tuple(dict.fromkeys(names)), report)
             arrays["normal_world"] = np.ascontiguousarray(px["normal"].transpose(2, 0, 1)[None])
-            if "normal" not in arrays:
-                arrays["normal"] = frame_inputs(crop, ("normal",), report)["normal"]
             if self.samples:
                 arrays["samples"] = np.ascontiguousarray(sub.transpose(0, 3, 1, 2))[None]
             for key, arr in arrays.items():
