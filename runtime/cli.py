@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("training.train", "train a model spec on rendered data into a run folder"),
     "export": ("export.onnx_export", "export a run folder to a self-describing ONNX file"),
     "denoise": ("runtime.denoise", "denoise a frame sequence with an ONNX model, print stage timings"),
+    "evaluate": ("training.evaluate", "score ONNX models, Open Image Denoise and the noisy input on held-out sequences"),
     "bench": ("training.bench", "benchmark models: per-stage time (torch vs onnxruntime) and quality"),
 }
 
