@@ -1,0 +1,267 @@
+"""``mcdenoise export RUN --out FILE.onnx``: a run folder -> a self-describing, checked ONNX file.
+
+:func:`export_model` works on any spec + model (trained or freshly initialised), so tests and
+benchmarks need no run folder; :func:`export_run` rebuilds the model from a run folder only
+(:func:`training.runs.load_run`).  Every export
+
+1. traces ``model.deploy()`` with the TorchScript exporter (``dynamo=False``; fast, and the
+   shared README's measurements favour its op choices) with dynamic N, H, W on every tensor;
+   a TracerWarning (a shape baked in as a constant) is an error;
+2. verifies every node name starts with ``/<stage>/`` of one of the spec's stages (the
+   runtime splits profiler time by these prefixes);
+3. writes the contract (:mod:`runtime.contract`) into ``metadata_props``, saves, and runs
+   ``onnx.checker.check_model(path, full_check=True)``;
+4. compares onnxruntime against the *training-form* torch model (eval mode, unfused) on inputs
+   of a different size than the trace (:data:`CHECK_SIZE`, batch 2), for every output:
+   :func:`parity_error` must be <= :data:`PARITY_TOL` (float32 both sides).
+
+The file is written to a temporary name and moved into place only when all checks pass.
+"""
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, Contract, contract_metadata, node_prefix,
+                              parse_contract, state_input_name, state_output_name)
+from runtime.frames import PIXEL_LAYERS
+
+DEFAULT_OPSET = 17
+#: (H, W) of the traced example input, and of the parity check input (deliberately different,
+#: not square, and a multiple of 4 neither in H nor in W).
+EXPORT_SIZE = (64, 64)
+CHECK_SIZE = (54, 78)
+#: Max relative error of onnxruntime vs torch (float32), see :func:`parity_error`.
+PARITY_TOL = 1e-4
+#: A value is "dark" when its magnitude is below this fraction of the tensor's mean magnitude;
+#: there float32 rounding of sums of much larger values dominates any relative error, so its
+#: error is measured relative to DARK_FRACTION·mean instead of to itself.
+DARK_FRACTION = 1e-3
+_LAYER_CHANNELS = {layer.name: len(layer.channels) for layer in PIXEL_LAYERS}
+
+
+class ExportError(RuntimeError):
+    """An exported graph failed a check (stage prefixes, onnx checker, parity)."""
+
+
+@dataclass
+class ExportReport:
+    """What :func:`export_model` wrote and measured."""
+
+    path: Path
+    opset: int
+    nodes: int
+    parity: dict[str, float] = field(default_factory=dict)
+    check_size: tuple[int, int] = CHECK_SIZE
+    seconds: float = 0.0
+
+    @property
+    def max_parity_error(self) -> float:
+        return max(self.parity.values()) if self.parity else 0.0
+
+
+def parity_error(test: np.ndarray, ref: np.ndarray, dark_fraction: float = DARK_FRACTION) -> float:
+    """Max over elements of |test − ref| / max(|ref|, dark_fraction · mean|ref|).
+
+    That is the max relative error on non-dark values (|ref| >= dark_fraction · mean|ref|), and
+    on dark ones the absolute error relative to that floor.  Inf/NaN anywhere gives inf.
+    """
+    test = np.asarray(test, np.float64)
+    ref = np.asarray(ref, np.float64)
+    if test.shape != ref.shape:
+        raise ValueError(f"parity_error: shapes differ, {test.shape} vs {ref.shape}")
+    if not (np.isfinite(test).all() and np.isfinite(ref).all()):
+        return float("inf")
+    floor = dark_fraction * float(np.mean(np.abs(ref)))
+    denom = np.maximum(np.abs(ref), floor)
+    denom = np.where(denom > 0, denom, 1.0)
+    return float(np.max(np.abs(test - ref) / denom))
+
+
+def unstaged_nodes(graph, stages) -> list[str]:
+    """Names of nodes of an ``onnx.GraphProto`` whose name lacks every ``/<stage>/`` prefix."""
+    prefixes = tuple(node_prefix(s) for s in stages)
+    return [f"{n.name or '<unnamed>'} ({n.op_type})" for n in graph.node if not n.name.startswith(prefixes)]
+
+
+def tidy_graph(graph) -> None:
+    """Remove the exporter's unscoped bookkeeping nodes from an ``onnx.GraphProto`` in place.
+
+    * ``Constant`` nodes holding a tensor become initializers (no kernel runs for them; the
+      TorchScript exporter emits some without a module scope, e.g. ReduceSum axes).
+    * ``Identity`` nodes that copy an initializer are bypassed: the exporter inserts them when
+      two parameters are bit-identical (e.g. two all-zero fused biases of an untrained model).
+    """
+    from onnx import numpy_helper
+
+    inits = {i.name for i in graph.initializer}
+    rename: dict[str, str] = {}
+    keep = []
+    for n in graph.node:
+        if n.op_type == "Constant" and len(n.attribute) == 1 and n.attribute[0].name == "value":
+            t = numpy_helper.from_array(numpy_helper.to_array(n.attribute[0].t), n.output[0])
+            graph.initializer.append(t)
+            inits.add(n.output[0])
+            continue
+        if n.op_type == "Identity" and n.input[0] in inits:
+            rename[n.output[0]] = n.input[0]
+            continue
+        keep.append(n)
+    outputs = {o.name for o in graph.output}
+    if outputs & set(rename):
+        raise ExportError(f"graph output(s) {sorted(outputs & set(rename))} are copies of parameters")
+    del graph.node[:]
+    for n in keep:
+        for j, name in enumerate(n.input):
+            if name in rename:
+                n.input[j] = rename[name]
+        graph.node.append(n)
+
+
+def build_contract(spec, model, code_hash: str, export_info: dict | None = None) -> Contract:
+    """The :class:`runtime.contract.Contract` of ``model`` built from ``spec``."""
+    from training.specs import spec_hash
+
+    layers = set(spec.inputs.layers)
+    state_in = {state_input_name(s.name): s for s in spec.state}
+    inputs = []
+    for name in model.input_names:
+        if name in layers:
+            inputs.append({"name": name, "layer": name, "channels": _LAYER_CHANNELS[name], "layout": LAYOUT,
+                           "transfer": "linear"})
+        elif name in state_in:
+            inputs.append({"name": name, "layer": None, "channels": state_in[name].channels,
+                           "layout": LAYOUT, "transfer": "linear"})
+        elif name == HISTORY:
+            inputs.append({"name": name, "layer": None, "channels": 1, "layout": LAYOUT, "transfer": "linear"})
+        else:
+            raise ValueError(f"model input {name!r} is neither a layer of the spec, a state input nor {HISTORY!r}")
+    outputs = [{"name": model.output_names[0], "channels": 3, "layout": LAYOUT, "transfer": "linear"}]
+    outputs += [{"name": state_output_name(s.name), "channels": s.channels, "layout": LAYOUT, "transfer": "linear"}
+                for s in spec.state]
+    return Contract(
+        version=FORMAT_VERSION, spec_name=spec.name, model_type=spec.type, spec_toml=spec.raw,
+        spec_hash=spec_hash(spec), code_hash=code_hash, inputs=tuple(inputs), outputs=tuple(outputs),
+        stages=tuple({"name": s, "node_prefix": node_prefix(s)} for s in spec.stages),
+        state=tuple({"name": s.name, "channels": s.channels, "input": state_input_name(s.name),
+                     "output": state_output_name(s.name)} for s in spec.state),
+        history=HISTORY if spec.state else "", paper=dict(spec.paper), export=dict(export_info or {}))
+
+
+def _torch_outputs(model, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+    import torch
+
+    with torch.no_grad():
+        outs = model(*[torch.from_numpy(feeds[n]) for n in model.input_names])
+    return [o.numpy() for o in outs]
+
+
+def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET, *,
+                 code_hash: str | None = None, export_size: tuple[int, int] = EXPORT_SIZE,
+                 check_size: tuple[int, int] = CHECK_SIZE, seed: int = 0,
+                 tol: float = PARITY_TOL) -> ExportReport:
+    """Export ``model`` (built from ``spec``; trained or not) to ``out_path`` and check it
+    (see the module docstring).  ``code_hash`` defaults to the current source tree's.
+
+    Raises ExportError when a check fails (nothing is left at ``out_path`` then).
+    """
+    import onnx
+    import onnxruntime as ort
+    import torch
+
+    from training.models import example_inputs
+    from training.runs import code_hash as current_code_hash
+
+    if opset < 17:
+        raise ValueError(f"opset must be >= 17 (AveragePool/ReduceMax semantics relied on), got {opset}")
+    t0 = time.perf_counter()
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    model.eval()
+    deployed = model.deploy() if hasattr(model, "deploy") else model
+    feeds = example_inputs(deployed, 1, *export_size, seed=seed)
+    args = tuple(torch.from_numpy(feeds[n]) for n in deployed.input_names)
+    axes = {n: {0: "N", 2: "H", 3: "W"} for n in (*deployed.input_names, *deployed.output_names)}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", FutureWarning)
+            warnings.simplefilter("error", torch.jit.TracerWarning)
+            torch.onnx.export(deployed, args, str(tmp), dynamo=False, opset_version=opset,
+                              input_names=list(deployed.input_names),
+                              output_names=list(deployed.output_names),
+                              dynamic_axes=axes, do_constant_folding=True)
+
+        proto = onnx.load(str(tmp))
+        tidy_graph(proto.graph)
+        bad = unstaged_nodes(proto.graph, spec.stages)
+        if bad:
+            raise ExportError(f"{spec.name}: {len(bad)} graph node(s) outside every stage "
+                              f"{list(spec.stages)}, e.g. {bad[:5]}; move their ops into a stage module")
+
+        check_feeds = example_inputs(model, 2, *check_size, seed=seed + 1)
+        ref = _torch_outputs(model, check_feeds)
+        so = ort.SessionOptions()
+        so.log_severity_level = 3
+        sess = ort.InferenceSession(proto.SerializeToString(), so, providers=["CPUExecutionProvider"])
+        got = sess.run(list(model.output_names), check_feeds)
+        parity = {n: parity_error(g, r) for n, g, r in zip(model.output_names, got, ref)}
+        if max(parity.values()) > tol:
+            raise ExportError(f"{spec.name}: onnxruntime differs from torch at {check_size[1]}x{check_size[0]}: "
+                              f"{ {k: f'{v:.3g}' for k, v in parity.items()} } > {tol:g} "
+                              f"(max relative error, dark < {DARK_FRACTION:g}·mean)")
+
+        info = {"opset": opset, "torch": torch.__version__, "onnx": onnx.__version__,
+                "exporter": "torchscript", "export_size": list(export_size),
+                "parity_size": list(check_size), "parity_max_rel_error": max(parity.values())}
+        contract = build_contract(spec, model, code_hash or current_code_hash(), info)
+        meta = contract_metadata(contract)
+        del proto.metadata_props[:]
+        for k, v in meta.items():
+            proto.metadata_props.add(key=k, value=v)
+        proto.producer_name = "mcdenoise"
+        proto.doc_string = f"mcdenoise {spec.name} ({spec.type}): {spec.description}"
+        onnx.save(proto, str(tmp))
+        onnx.checker.check_model(str(tmp), full_check=True)
+        parse_contract({p.key: p.value for p in onnx.load(str(tmp), load_external_data=False).metadata_props})
+        os.replace(tmp, out_path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return ExportReport(path=out_path, opset=opset, nodes=len(proto.graph.node), parity=parity,
+                        check_size=tuple(check_size), seconds=time.perf_counter() - t0)
+
+
+def export_run(run_dir: str | os.PathLike, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET) -> ExportReport:
+    """Export the model of a run folder (spec + checkpoint, nothing else) to ``out_path``.
+
+    The contract's code hash is the run's ``code_hash.txt`` (the code that trained it) when
+    present, else the current tree's.
+    """
+    from training import runs
+
+    spec, model, _ = runs.load_run(run_dir)
+    ch_file = Path(run_dir) / runs.CODE_HASH_FILE
+    ch = ch_file.read_text().strip() if ch_file.exists() else None
+    return export_model(spec, model, out_path, opset, code_hash=ch)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("run", metavar="RUN", help="run folder written by 'mcdenoise train'")
+    p.add_argument("--out", required=True, metavar="FILE.onnx", help="ONNX file to write")
+    p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
+                   help=f"ONNX opset, >= 17 (default {DEFAULT_OPSET})")
+
+
+def main(args) -> int:
+    rep = export_run(args.run, args.out, args.opset)
+    print(f"wrote {rep.path} (opset {rep.opset}, {rep.nodes} nodes, {rep.seconds:.1f} s); "
+          f"onnxruntime vs torch at {rep.check_size[1]}x{rep.check_size[0]}: max relative error "
+          f"{rep.max_parity_error:.2e} (tolerance {PARITY_TOL:g})")
+    return 0

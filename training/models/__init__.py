@@ -1,0 +1,87 @@
+"""Model builders, and the interface every mcdenoise model follows.
+
+Importing this package imports torch and registers every builder with
+:func:`training.specs.register`; :func:`training.specs.build_model` imports it for you.
+
+The model interface
+-------------------
+A model is a ``torch.nn.Module`` with
+
+``input_names: tuple[str, ...]`` and ``output_names: tuple[str, ...]``
+    exactly :attr:`training.specs.ModelSpec.input_names` / ``output_names`` of its spec.
+``forward(*tensors) -> tuple``
+    float32 NCHW tensors in ``input_names`` order; returns a tuple in ``output_names`` order.
+    Inputs:
+
+    * the spec's pixel layers, by :data:`runtime.frames.PIXEL_LAYERS` name:
+      ``color`` (N, 3, H, W) linear HDR radiance, already sanitised (finite, >= 0);
+      ``albedo`` (N, 3, H, W), >= 0 (0 on misses and delta BSDFs, may exceed 1);
+      ``normal`` (N, 3, H, W) world-space unit normals in [-1, 1] (0 on a miss);
+      ``depth`` (N, 1, H, W) distance along the primary ray in scene units (0 on a miss);
+    * per ``[[state]]`` entry ``prev_<name>`` (N, C, H, W): the previous frame's
+      ``next_<name>`` output, reprojected to this frame by the driver (finite; zeros where
+      there is no history);
+    * ``history`` (N, 1, H, W) in [0, 1], present iff the spec has state: the driver's
+      reprojection-validity mask, 0 on the first frame, after a reset and where disoccluded.
+
+    Outputs: ``output`` (N, 3, H, W) linear HDR radiance, then ``next_<name>`` per state entry.
+    N, H and W are free (the export makes them dynamic axes).
+``state_channels: dict[str, int]``
+    state name -> channel count, as in the spec's ``[[state]]``.
+one child module per spec stage, named after it (``model.temporal``, ``model.prediction``...)
+    and nothing else at the top level: every operation of ``forward`` runs inside a stage
+    module, so exported node names start with ``/<stage>/`` and the runtime can split a
+    profile into stages.  Pre-processing (tonemapping, normalisation, demodulation) lives
+    inside a stage too.
+``deploy() -> nn.Module``
+    the inference form with the same interface (eval mode, re-parameterised layers fused,
+    fastest equivalent code path); the exporter exports ``model.deploy()``.
+
+Training calls ``model.train()`` / ``model.eval()`` as usual; the builders are in the modules
+of this package (``wskpn``: WSKPN).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.contract import HISTORY, STATE_INPUT_PREFIX
+from training.models import wskpn  # noqa: F401  (registers type "wskpn")
+
+
+def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0) -> dict[str, np.ndarray]:
+    """Plausible random float32 inputs for ``model`` (by its ``input_names``), for tests and
+    export checks: name -> (n, C, h, w) array.
+
+    color: smooth HDR radiance times 1-spp-like noise (heavy-tailed, with a few fireflies up
+    to ~100); albedo in [0, 1] with a few 0 (miss) pixels; normal: unit vectors (0 where
+    depth is 0); depth in [0.5, 20] with ~3% misses (0); prev_<state>: like color; history:
+    a mix of 0, 1 and fractions.
+    """
+    rng = np.random.default_rng(seed)
+    yy, xx = np.meshgrid(np.linspace(0, 1, h), np.linspace(0, 1, w), indexing="ij")
+    base = (0.5 + 0.4 * np.sin(6.0 * xx + 3.0 * yy))[None, None]
+
+    def radiance(c: int) -> np.ndarray:
+        noise = rng.exponential(1.0, size=(n, c, h, w))
+        fireflies = (rng.random((n, 1, h, w)) < 0.005) * rng.uniform(10.0, 100.0, (n, 1, h, w))
+        return base * noise + fireflies
+
+    miss = rng.random((n, 1, h, w)) < 0.03
+    layers = {
+        "color": radiance(3),
+        "albedo": np.where(miss, 0.0, rng.uniform(0.0, 1.0, (n, 3, h, w))),
+        "depth": np.where(miss, 0.0, rng.uniform(0.5, 20.0, (n, 1, h, w))),
+    }
+    nrm = rng.normal(size=(n, 3, h, w))
+    layers["normal"] = np.where(miss, 0.0, nrm / np.linalg.norm(nrm, axis=1, keepdims=True))
+    hist = rng.random((n, 1, h, w))
+    layers[HISTORY] = np.where(hist < 0.3, 0.0, np.where(hist > 0.6, 1.0, hist))
+    out = {}
+    for name in model.input_names:
+        if name.startswith(STATE_INPUT_PREFIX):
+            out[name] = radiance(model.state_channels[name[len(STATE_INPUT_PREFIX):]])
+        elif name in layers:
+            out[name] = layers[name]
+        else:
+            raise KeyError(f"example_inputs: no generator for input {name!r}")
+    return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in out.items()}

@@ -1,0 +1,515 @@
+"""WSKPN: weight-sharing kernel prediction (Fan et al., EGSR 2021), registered as type "wskpn".
+
+Pipeline (stages, in order; each is a submodule so exported node names carry its prefix):
+
+``temporal`` (optional, §4.1)
+    accum = history·(α·color + (1−α)·prev_accum) + (1−history)·color, α = ``params.alpha``;
+    ``next_accum`` = accum.  The driver reprojects it and computes ``history``.
+``prediction`` (§4.1, §5.1)
+    features = [transfer(accum), albedo, (normal+1)/2, depth/max(depth)] (10 channels,
+    transfer = spec ``inputs.transfer``), then the ImportanceNet: RepVGG blocks (1×1, 3×3, 5×5
+    conv branches + identity, summed, ReLU) -> M importance maps I_i and M fusion logits per
+    level.  ``levels`` > 1 makes it a U-net that predicts maps at 1/2, 1/4, ... resolution and
+    one extra blend logit per finer level (§5.2).
+``reconstruction`` (§3, §4.2, Eq. 3–5, 7)
+    irradiance = accum / (albedo + ALBEDO_EPS); per kernel size k_i the filtered irradiance
+    R_i(p) = Σ_{q∈Ω_k(p)} exp(I_i(q)) x(q) / Σ_{q∈Ω_k(p)} exp(I_i(q)); fused with softmax
+    weights of the logits (Eq. 5); for levels > 1 the levels are combined from the coarsest by
+    Eq. 7; finally re-modulated by (albedo + ALBEDO_EPS).
+
+Because a WSKPN weight depends only on the *source* pixel q, Eq. 3–4 equal
+boxsum(exp(I)·x) / boxsum(exp(I)): the ``"boxsum"`` kernel path (two separable box filters per
+kernel, constant in k).  The ``"unfold"`` path is the paper's formulation (unfold the
+importance map into k² channels, softmax over them, weighted sum of the unfolded image) kept
+as the reference; both exclude taps outside the image (they get weight 0), so they agree at
+the borders too.  :meth:`WSKPN.deploy` fuses the RepVGG blocks and selects ``"boxsum"``.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from runtime.transfer import get as get_transfer
+from training.specs import ModelSpec, SpecError, register
+
+#: Albedo demodulation epsilon: irradiance = radiance / (albedo + ALBEDO_EPS), and the result
+#: is multiplied back by the same (albedo + ALBEDO_EPS), so an identity filter returns the
+#: input exactly.  0 albedo (misses, delta BSDFs) makes irradiance 100x radiance there.
+ALBEDO_EPS = 1e-2
+#: Importance values are clamped to ±IMPORTANCE_BOUND before exp: a weight ratio of
+#: exp(2·20) ≈ 2e17 already means "ignore", and bounded weights keep every window sum
+#: positive and far from float32 under/overflow, so no division by 0 for any network output.
+IMPORTANCE_BOUND = 20.0
+#: Kernel application variants (see module docstring); "boxsum" is the fast, deployed one.
+KERNEL_PATHS = ("boxsum", "unfold")
+#: Pixel layers WSKPN reads, and the channel count of the ImportanceNet input.
+LAYERS = ("color", "albedo", "normal", "depth")
+N_FEATURES = 10
+#: Name of the state tensor of the temporal stage.
+ACCUM = "accum"
+
+
+@dataclass(frozen=True)
+class WSKPNParams:
+    """``[params]`` of a "wskpn" spec.
+
+    blocks: levels == 1: RepVGG blocks of the ImportanceNet, the last one being the linear
+        output block (the paper's "3-layer" / "6-layer"); levels > 1: blocks per encoder level
+        and per decoder level, plus one linear output block per level.
+    widths: hidden channels, one entry per level (finest first).
+    kernel_sizes: odd filter window sizes k_i fused at each level (M = len(kernel_sizes)).
+    levels: resolutions (1: single-resolution WSKPN; 3: the paper's multi-resolution model).
+    alpha: temporal blend factor of the current frame (used only with a "temporal" stage).
+    batchnorm: BatchNorm after every RepVGG branch (as in RepVGG); folded away by deploy().
+    """
+
+    blocks: int
+    widths: tuple[int, ...]
+    kernel_sizes: tuple[int, ...] = (3, 5, 7, 9, 11, 13)
+    levels: int = 1
+    alpha: float = 0.2
+    batchnorm: bool = True
+
+    def __post_init__(self):
+        if self.levels < 1:
+            raise ValueError(f"levels: must be >= 1, got {self.levels}")
+        if self.blocks < 1:
+            raise ValueError(f"blocks: must be >= 1, got {self.blocks}")
+        if len(self.widths) != self.levels or any(w < 1 for w in self.widths):
+            raise ValueError(f"widths: need {self.levels} positive channel counts (one per level), "
+                             f"got {list(self.widths)}")
+        if not self.kernel_sizes or any(k < 1 or k % 2 == 0 for k in self.kernel_sizes):
+            raise ValueError(f"kernel_sizes: need odd sizes >= 1, got {list(self.kernel_sizes)}")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha: must be in (0, 1], got {self.alpha}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Plain functions (each tested on its own)
+# ----------------------------------------------------------------------------------------------
+
+def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.Tensor,
+                        alpha: float) -> torch.Tensor:
+    """Exponential moving average with the reprojected history (§4.1).
+
+    color, prev: (N, 3, H, W) linear HDR; history: (N, 1, H, W) in [0, 1].
+    Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
+    multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
+    """
+    return color + (history * (1.0 - alpha)) * (prev - color)
+
+
+def wskpn_features(accum: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
+                   depth: torch.Tensor, transfer: str) -> torch.Tensor:
+    """ImportanceNet input (§5.1): (N, 10, H, W) =
+    [transfer(accum) (3), albedo (3), normal·0.5+0.5 in [0, 1] (3), depth / per-image max (1)].
+
+    accum: linear HDR radiance (albedo-modulated, as rendered); normal: unit vectors (0 on a
+    miss -> 0.5); depth: ray distance, 0 on a miss.  Dividing by the per-image maximum keeps the
+    feature in [0, 1] whatever the scene units (the paper scales linearly to [0, 1]); a crop's
+    maximum differs from its frame's, which training crops must live with.
+    """
+    dmax = depth.amax(dim=(1, 2, 3), keepdim=True).clamp(min=1e-12)
+    return torch.cat([get_transfer(transfer)(accum), albedo, normal * 0.5 + 0.5, depth / dmax], dim=1)
+
+
+def downsample2(x: torch.Tensor) -> torch.Tensor:
+    """D of Eq. 7: 2×2 average pooling, (N, C, H, W) -> (N, C, H/2, W/2); H, W even."""
+    return F.avg_pool2d(x, 2)
+
+
+def upsample2(x: torch.Tensor) -> torch.Tensor:
+    """U of Eq. 7: nearest-neighbour 2× upsampling, (N, C, h, w) -> (N, C, 2h, 2w)."""
+    return F.interpolate(x, scale_factor=2.0, mode="nearest")
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """Replicate-pad the bottom/right of (N, C, H, W) so H and W are multiples of ``multiple``
+    (the pad amount is computed in-graph, so exports keep dynamic H, W)."""
+    h, w = x.shape[-2], x.shape[-1]
+    return F.pad(x, (0, (multiple - w % multiple) % multiple, 0, (multiple - h % multiple) % multiple),
+                 mode="replicate")
+
+
+def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
+    """Sum over the k×k window around each pixel of zero-padded ``x``, divided by k²:
+    (N, C, H, W) -> same.  Separable (1×k then k×1 average pools, count_include_pad so the
+    divisor is k² everywhere: ratios of two window means are ratios of window sums)."""
+    if k == 1:
+        return x
+    r = k // 2
+    x = F.avg_pool2d(x, (1, k), stride=1, padding=(0, r), count_include_pad=True)
+    return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
+
+
+def importance_weights(importance: torch.Tensor) -> torch.Tensor:
+    """exp(I − max I) per image and map: (N, M, H, W) -> weights in (0, 1].
+
+    I is clamped to ±IMPORTANCE_BOUND first, so every weight is >= exp(−2·bound) ≈ 4e-18: a
+    window sum is never 0.  The max is a per-image constant and cancels in Eq. 3 (detached:
+    it carries no gradient).
+    """
+    i = importance.clamp(-IMPORTANCE_BOUND, IMPORTANCE_BOUND)
+    return torch.exp(i - i.amax(dim=(2, 3), keepdim=True).detach())
+
+
+def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch.Tensor:
+    """Eq. 3–4 with source-pixel weights: boxsum_k(w·x) / boxsum_k(w).
+
+    x: (N, C, H, W); weights: (N, 1, H, W) positive (see :func:`importance_weights`).
+    Taps outside the image contribute nothing (zero padding of both sums).
+    """
+    s = _window_mean(torch.cat([weights * x, weights], dim=1), k)
+    return s[:, :-1] / s[:, -1:]
+
+
+def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int) -> torch.Tensor:
+    """Eq. 3–4 as the paper computes them (reference path): unfold the clamped importance map
+    into its k² window taps, normalise them with a softmax over the taps, and take the
+    weighted sum of the unfolded image.
+
+    x: (N, C, H, W); importance: (N, 1, H, W) raw network output.  Taps outside the image are
+    padded with −inf importance (weight 0) and 0 colour.  Memory: k²·C·H·W values.
+    """
+    n, c, h, w = x.shape
+    r = k // 2
+    i = importance.clamp(-IMPORTANCE_BOUND, IMPORTANCE_BOUND)
+    taps = F.unfold(F.pad(i, (r, r, r, r), value=float("-inf")), k).view(n, k * k, h, w)
+    e = torch.exp(taps - taps.amax(dim=1, keepdim=True))
+    wts = e / e.sum(dim=1, keepdim=True)
+    cols = F.unfold(x, k, padding=r).view(n, c, k * k, h, w)
+    return (cols * wts.unsqueeze(1)).sum(dim=2)
+
+
+def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor,
+                 kernel_sizes: Sequence[int], kernel_path: str = "boxsum") -> torch.Tensor:
+    """Kernel fusion (Eq. 5): Σ_i α_i R_i with α = softmax over i of ``logits``.
+
+    x: (N, C, H, W) irradiance; importance, logits: (N, M, H, W) with M = len(kernel_sizes).
+    The softmax is written exp(x − max) / Σ, divided once at the end (onnxruntime's channel
+    Softmax on NCHW is slow).  Returns (N, C, H, W).
+    """
+    if kernel_path not in KERNEL_PATHS:
+        raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {kernel_path!r}")
+    a = torch.exp(logits - logits.amax(dim=1, keepdim=True))
+    weights = importance_weights(importance) if kernel_path == "boxsum" else None
+    acc = None
+    for i, k in enumerate(kernel_sizes):
+        if kernel_path == "boxsum":
+            wi = weights[:, i:i + 1]
+            s = _window_mean(torch.cat([wi * x, wi], dim=1), k)
+            term = s[:, :-1] * (a[:, i:i + 1] / s[:, -1:])
+        else:
+            term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
+        acc = term if acc is None else acc + term
+    return acc / a.sum(dim=1, keepdim=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# RepVGG blocks
+# ----------------------------------------------------------------------------------------------
+
+class ConvBN(nn.Module):
+    """k×k convolution ('same' padding) followed by BatchNorm, or a biased convolution alone."""
+
+    def __init__(self, cin: int, cout: int, k: int, batchnorm: bool):
+        super().__init__()
+        self.conv = nn.Conv2d(cin, cout, k, padding=k // 2, bias=not batchnorm)
+        self.bn = nn.BatchNorm2d(cout) if batchnorm else None
+
+    def forward(self, x):
+        y = self.conv(x)
+        return self.bn(y) if self.bn is not None else y
+
+    def fused(self, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(weight (cout, cin, size, size), bias (cout,)) in float64 of conv+BN (eval-mode
+        statistics), the kernel zero-padded to ``size``."""
+        w = self.conv.weight.detach().double()
+        p = (size - w.shape[-1]) // 2
+        w = F.pad(w, (p, p, p, p))
+        b = (self.conv.bias.detach().double() if self.conv.bias is not None
+             else torch.zeros(w.shape[0], dtype=torch.float64))
+        return _fold_bn(w, b, self.bn)
+
+
+def _fold_bn(w: torch.Tensor, b: torch.Tensor, bn: nn.BatchNorm2d | None):
+    if bn is None:
+        return w, b
+    scale = bn.weight.detach().double() / torch.sqrt(bn.running_var.double() + bn.eps)
+    return w * scale.view(-1, 1, 1, 1), bn.bias.detach().double() + (b - bn.running_mean.double()) * scale
+
+
+class FusedConv(nn.Module):
+    """The inference form of a :class:`RepVGGBlock`: one 5×5 convolution (+ ReLU)."""
+
+    def __init__(self, conv: nn.Conv2d, act: bool):
+        super().__init__()
+        self.conv = conv
+        self.act = act
+
+    def forward(self, x):
+        y = self.conv(x)
+        return F.relu(y) if self.act else y
+
+
+class RepVGGBlock(nn.Module):
+    """RepVGG block as WSKPN uses it (§4.1): 5×5, 3×3 and 1×1 conv branches (each with BN if
+    ``batchnorm``) plus an identity branch (BN'd if ``batchnorm``) when cin == cout, summed,
+    then ReLU (``act=False`` for a linear output block).  (N, cin, H, W) -> (N, cout, H, W).
+
+    :meth:`fuse` returns the equivalent single 5×5 convolution (exact up to float rounding;
+    BN folded with its running statistics, i.e. the eval-mode block).
+    """
+
+    def __init__(self, cin: int, cout: int, act: bool = True, batchnorm: bool = True):
+        super().__init__()
+        self.branch5 = ConvBN(cin, cout, 5, batchnorm)
+        self.branch3 = ConvBN(cin, cout, 3, batchnorm)
+        self.branch1 = ConvBN(cin, cout, 1, batchnorm)
+        if cin == cout:
+            self.identity = nn.BatchNorm2d(cout) if batchnorm else nn.Identity()
+        else:
+            self.identity = None
+        self.act = act
+
+    def forward(self, x):
+        y = self.branch5(x) + self.branch3(x) + self.branch1(x)
+        if self.identity is not None:
+            y = y + self.identity(x)
+        return F.relu(y) if self.act else y
+
+    def fuse(self) -> FusedConv:
+        conv5 = self.branch5.conv
+        w, b = self.branch5.fused(5)
+        for br in (self.branch3, self.branch1):
+            wb, bb = br.fused(5)
+            w, b = w + wb, b + bb
+        if self.identity is not None:
+            wi = torch.zeros_like(w)
+            idx = torch.arange(w.shape[0])
+            wi[idx, idx, 2, 2] = 1.0
+            bn = self.identity if isinstance(self.identity, nn.BatchNorm2d) else None
+            wi, bi = _fold_bn(wi, torch.zeros_like(b), bn)
+            w, b = w + wi, b + bi
+        conv = nn.Conv2d(conv5.in_channels, conv5.out_channels, 5, padding=2, bias=True)
+        with torch.no_grad():
+            conv.weight.copy_(w.to(conv5.weight.dtype))
+            conv.bias.copy_(b.to(conv5.weight.dtype))
+        return FusedConv(conv, self.act)
+
+
+def fuse_repvgg(module: nn.Module) -> nn.Module:
+    """Replace every :class:`RepVGGBlock` inside ``module`` (in place) by its fused conv."""
+    for name, child in module.named_children():
+        if isinstance(child, RepVGGBlock):
+            setattr(module, name, child.fuse())
+        else:
+            fuse_repvgg(child)
+    return module
+
+
+# ----------------------------------------------------------------------------------------------
+# ImportanceNet
+# ----------------------------------------------------------------------------------------------
+
+class ImportanceNet(nn.Module):
+    """Single-resolution ImportanceNet: ``blocks`` RepVGG blocks, the last linear.
+    (N, cin, H, W) -> [(N, cout, H, W)]."""
+
+    def __init__(self, cin: int, width: int, blocks: int, cout: int, batchnorm: bool):
+        super().__init__()
+        chans = [cin] + [width] * (blocks - 1) + [cout]
+        self.body = nn.Sequential(*[RepVGGBlock(a, b, act=i < blocks - 1, batchnorm=batchnorm)
+                                    for i, (a, b) in enumerate(zip(chans, chans[1:]))])
+
+    def forward(self, x):
+        return [self.body(x)]
+
+
+class ImportanceUNet(nn.Module):
+    """Multi-resolution ImportanceNet (§5.2): a U-net with ``len(widths)`` levels.
+
+    Encoder level l: (2×2 average pool if l > 0), ``blocks`` RepVGG blocks -> widths[l].
+    Decoder level l < L−1: nearest upsample of level l+1, concatenated with the encoder skip,
+    ``blocks`` RepVGG blocks -> widths[l].  Each level ends in a linear RepVGG output block of
+    ``couts[l]`` channels.  (N, cin, H, W), H and W multiples of 2^(L−1) ->
+    [(N, couts[l], H/2^l, W/2^l) for l in 0..L−1].
+    """
+
+    def __init__(self, cin: int, widths: Sequence[int], blocks: int, couts: Sequence[int],
+                 batchnorm: bool):
+        super().__init__()
+        n = len(widths)
+
+        def stack(a: int, b: int) -> nn.Sequential:
+            return nn.Sequential(*[RepVGGBlock(a if j == 0 else b, b, batchnorm=batchnorm)
+                                   for j in range(blocks)])
+
+        self.enc = nn.ModuleList([stack(cin if l == 0 else widths[l - 1], widths[l]) for l in range(n)])
+        self.dec = nn.ModuleList([stack(widths[l + 1] + widths[l], widths[l]) for l in range(n - 1)])
+        self.heads = nn.ModuleList([RepVGGBlock(widths[l], couts[l], act=False, batchnorm=batchnorm)
+                                    for l in range(n)])
+
+    def forward(self, x):
+        skips = []
+        for l, enc in enumerate(self.enc):
+            x = enc(x if l == 0 else downsample2(x))
+            skips.append(x)
+        outs = [self.heads[-1](x)]
+        for l in reversed(range(len(self.dec))):
+            x = self.dec[l](torch.cat([upsample2(x), skips[l]], dim=1))
+            outs.insert(0, self.heads[l](x))
+        return outs
+
+
+# ----------------------------------------------------------------------------------------------
+# Stages and the model
+# ----------------------------------------------------------------------------------------------
+
+class TemporalStage(nn.Module):
+    """Stage "temporal": :func:`temporal_accumulate` with a fixed α."""
+
+    def __init__(self, alpha: float):
+        super().__init__()
+        self.alpha = float(alpha)
+
+    def forward(self, color, prev, history):
+        return temporal_accumulate(color, prev, history, self.alpha)
+
+
+class PredictionStage(nn.Module):
+    """Stage "prediction": features (:func:`wskpn_features`) -> ImportanceNet.
+    Returns per level (N, 2M (+1 blend logit below the coarsest level), H_l, W_l)."""
+
+    def __init__(self, params: WSKPNParams, transfer: str):
+        super().__init__()
+        m = len(params.kernel_sizes)
+        self.transfer = transfer
+        self.multiple = 2 ** (params.levels - 1)
+        if params.levels == 1:
+            self.net = ImportanceNet(N_FEATURES, params.widths[0], params.blocks, 2 * m, params.batchnorm)
+        else:
+            couts = [2 * m + 1] * (params.levels - 1) + [2 * m]
+            self.net = ImportanceUNet(N_FEATURES, params.widths, params.blocks, couts, params.batchnorm)
+
+    def forward(self, accum, albedo, normal, depth):
+        f = wskpn_features(accum, albedo, normal, depth, self.transfer)
+        if self.multiple > 1:
+            f = pad_to_multiple(f, self.multiple)
+        return self.net(f)
+
+
+class ReconstructionStage(nn.Module):
+    """Stage "reconstruction": demodulate, filter and fuse per level, combine levels (Eq. 7),
+    re-modulate.  accum, albedo: (N, 3, H, W); preds: output of :class:`PredictionStage`.
+    Returns (N, 3, H, W) linear HDR."""
+
+    def __init__(self, params: WSKPNParams, kernel_path: str = "boxsum"):
+        super().__init__()
+        if kernel_path not in KERNEL_PATHS:
+            raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {kernel_path!r}")
+        self.kernel_sizes = tuple(params.kernel_sizes)
+        self.multiple = 2 ** (params.levels - 1)
+        self.kernel_path = kernel_path
+
+    def forward(self, accum, albedo, preds):
+        m = len(self.kernel_sizes)
+        modulation = albedo + ALBEDO_EPS
+        x = accum / modulation
+        h, w = x.shape[-2], x.shape[-1]
+        if self.multiple > 1:
+            x = pad_to_multiple(x, self.multiple)
+        filtered = []
+        for l, p in enumerate(preds):
+            if l > 0:
+                x = downsample2(x)
+            filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, self.kernel_path))
+        out = filtered[-1]
+        for l in reversed(range(len(preds) - 1)):
+            fine = filtered[l]
+            blend = torch.sigmoid(preds[l][:, 2 * m:2 * m + 1])
+            # Eq. 7: fine − α·U(D(fine)) + α·U(coarse) = fine + α·U(coarse − D(fine)) (U linear)
+            out = fine + blend * upsample2(out - downsample2(fine))
+        if self.multiple > 1:
+            out = out[:, :, :h, :w]
+        return out * modulation
+
+
+class WSKPN(nn.Module):
+    """The WSKPN model; see the module docstring and ``training/models/__init__.py`` for the
+    interface.  ``forward(*inputs)`` takes the tensors named by ``input_names`` in order."""
+
+    def __init__(self, params: WSKPNParams, layers: Sequence[str], transfer: str, temporal: bool,
+                 kernel_path: str = "boxsum"):
+        super().__init__()
+        self.params = params
+        self.temporal_enabled = temporal
+        if temporal:
+            self.temporal = TemporalStage(params.alpha)
+        self.prediction = PredictionStage(params, transfer)
+        self.reconstruction = ReconstructionStage(params, kernel_path)
+        self.state_channels = {ACCUM: 3} if temporal else {}
+        state_in = (state_input_name(ACCUM), HISTORY) if temporal else ()
+        self.input_names = tuple(layers) + state_in
+        self.output_names = (OUTPUT,) + ((state_output_name(ACCUM),) if temporal else ())
+
+    def forward(self, *inputs):
+        if len(inputs) != len(self.input_names):
+            raise TypeError(f"WSKPN.forward takes {len(self.input_names)} tensors "
+                            f"{self.input_names}, got {len(inputs)}")
+        t = dict(zip(self.input_names, inputs))
+        accum = t["color"]
+        if self.temporal_enabled:
+            accum = self.temporal(accum, t[state_input_name(ACCUM)], t[HISTORY])
+        preds = self.prediction(accum, t["albedo"], t["normal"], t["depth"])
+        out = self.reconstruction(accum, t["albedo"], preds)
+        return (out, accum) if self.temporal_enabled else (out,)
+
+    @property
+    def kernel_path(self) -> str:
+        return self.reconstruction.kernel_path
+
+    @kernel_path.setter
+    def kernel_path(self, value: str) -> None:
+        if value not in KERNEL_PATHS:
+            raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {value!r}")
+        self.reconstruction.kernel_path = value
+
+    def deploy(self, kernel_path: str = "boxsum") -> "WSKPN":
+        """Inference copy: eval mode, RepVGG blocks fused into single 5×5 convolutions, the
+        given kernel path ("boxsum", the fast one, by default), no gradients.  ``self`` is
+        left unchanged."""
+        model = copy.deepcopy(self).eval()
+        fuse_repvgg(model)
+        model.kernel_path = kernel_path
+        for p in model.parameters():
+            p.requires_grad_(False)
+        return model
+
+
+@register("wskpn")
+def build_wskpn(spec: ModelSpec) -> WSKPN:
+    """Builder of type "wskpn": validates ``[params]`` (:class:`WSKPNParams`), the layers, the
+    stages (["temporal",] "prediction", "reconstruction") and the state ([accum, 3] iff there is
+    a temporal stage)."""
+    params = spec.params_as(WSKPNParams)
+    where = spec.path or spec.name
+    if sorted(spec.inputs.layers) != sorted(LAYERS):
+        raise SpecError(f"{where}: [inputs].layers must be {list(LAYERS)} (any order) for type "
+                        f"'wskpn', got {list(spec.inputs.layers)}")
+    temporal = "temporal" in spec.stages
+    stages = ("temporal", "prediction", "reconstruction") if temporal else ("prediction", "reconstruction")
+    if tuple(spec.stages) != stages:
+        raise SpecError(f"{where}: stages must be {list(stages)} for type 'wskpn', got {list(spec.stages)}")
+    state = [(s.name, s.channels) for s in spec.state]
+    want = [(ACCUM, 3)] if temporal else []
+    if state != want:
+        raise SpecError(f"{where}: [[state]] must be {want} for type 'wskpn' "
+                        f"({'with' if temporal else 'without'} a temporal stage), got {state}")
+    return WSKPN(params, spec.inputs.layers, spec.inputs.transfer, temporal)
