@@ -234,7 +234,7 @@ class ConvBN(nn.Module):
         p = (size - w.shape[-1]) // 2
         w = F.pad(w, (p, p, p, p))
         b = (self.conv.bias.detach().double() if self.conv.bias is not None
-             else torch.zeros(w.shape[0], dtype=torch.float64))
+             else torch.zeros(w.shape[0], dtype=torch.float64, device=w.device))
         return _fold_bn(w, b, self.bn)
 
 
@@ -297,10 +297,12 @@ class RepVGGBlock(nn.Module):
             bn = self.identity if isinstance(self.identity, nn.BatchNorm2d) else None
             wi, bi = _fold_bn(wi, torch.zeros_like(b), bn)
             w, b = w + wi, b + bi
-        conv = nn.Conv2d(conv5.in_channels, conv5.out_channels, 5, padding=2, bias=True)
+        ref = conv5.weight
+        conv = nn.Conv2d(conv5.in_channels, conv5.out_channels, 5, padding=2, bias=True,
+                         dtype=ref.dtype, device=ref.device)
         with torch.no_grad():
-            conv.weight.copy_(w.to(conv5.weight.dtype))
-            conv.bias.copy_(b.to(conv5.weight.dtype))
+            conv.weight.copy_(w)
+            conv.bias.copy_(b)
         return FusedConv(conv, self.act)
 
 

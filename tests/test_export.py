@@ -1,0 +1,236 @@
+"""ONNX export of every spec: checker, onnxruntime and onnx.reference parity, contract metadata,
+stage prefixes, run-folder export and the CLI."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+from onnx.reference import ReferenceEvaluator
+
+from export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, PARITY_TOL, ExportError, export_model,
+                                export_run, parity_error, unstaged_nodes)
+from runtime import contract as C
+from training import runs
+from training.models import example_inputs
+from training.specs import build_model, list_specs, load_spec, parse_spec, spec_hash
+
+SPECS = list_specs()
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """spec name -> (spec, untrained model in eval mode, path of its ONNX export, report)."""
+    out = {}
+    d = tmp_path_factory.mktemp("onnx")
+    for name in SPECS:
+        spec = load_spec(name)
+        torch.manual_seed(0)
+        model = build_model(spec).eval()
+        report = export_model(spec, model, d / f"{name}.onnx")
+        out[name] = (spec, model, d / f"{name}.onnx", report)
+    return out
+
+
+def _session(path):
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 2
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+def _torch(model, feeds):
+    with torch.no_grad():
+        return [o.numpy() for o in model(*[torch.from_numpy(feeds[n]) for n in model.input_names])]
+
+
+def test_parity_error_definition():
+    ref = np.array([1.0, 2.0, 1e-9, 0.0], np.float32)
+    assert parity_error(ref, ref) == 0.0
+    assert parity_error(ref * (1 + 1e-3), ref) == pytest.approx(1e-3, rel=1e-3)
+    dark_floor = DARK_FRACTION * np.mean(np.abs(ref))
+    test = ref.copy()
+    test[3] = 0.5 * dark_floor  # a dark value off by half the floor
+    assert parity_error(test, ref) == pytest.approx(0.5, rel=1e-3)
+    assert parity_error(np.array([np.nan]), np.array([1.0])) == float("inf")
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_export_checks_pass(name, exported):
+    spec, model, path, report = exported[name]
+    assert CHECK_SIZE != EXPORT_SIZE
+    onnx.checker.check_model(str(path), full_check=True)
+    proto = onnx.load(str(path))
+    assert proto.opset_import[0].version >= 17
+    assert report.max_parity_error <= PARITY_TOL
+    assert set(report.parity) == set(model.output_names)
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_dynamic_axes(name, exported):
+    _, model, path, _ = exported[name]
+    sess = _session(path)
+    assert [i.name for i in sess.get_inputs()] == list(model.input_names)
+    assert [o.name for o in sess.get_outputs()] == list(model.output_names)
+    for t in (*sess.get_inputs(), *sess.get_outputs()):
+        n, c, h, w = t.shape
+        assert isinstance(n, str) and isinstance(h, str) and isinstance(w, str) and isinstance(c, int)
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_onnxruntime_matches_torch_at_another_size(name, exported):
+    """Odd size (neither export nor check size), batch 3: max relative error <= 1e-4 on values
+    >= DARK_FRACTION·mean|ref| (dark values: absolute error <= 1e-4 · that floor)."""
+    _, model, path, _ = exported[name]
+    feeds = example_inputs(model, 3, 37, 29, seed=5)
+    ref = _torch(model, feeds)
+    got = _session(path).run(list(model.output_names), feeds)
+    for n, g, r in zip(model.output_names, got, ref):
+        assert g.shape == r.shape == (3, r.shape[1], 37, 29)
+        assert np.mean(np.abs(r) >= DARK_FRACTION * np.mean(np.abs(r))) > 0.9  # mostly non-dark
+        assert parity_error(g, r) <= PARITY_TOL, n
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_reference_evaluator_matches_on_tiny_input(name, exported):
+    """onnx.reference (a plain-numpy ONNX interpreter) agrees with torch and onnxruntime."""
+    _, model, path, _ = exported[name]
+    feeds = example_inputs(model, 1, 8, 12, seed=6)
+    ref = _torch(model, feeds)
+    got = ReferenceEvaluator(str(path)).run(list(model.output_names), feeds)
+    ortv = _session(path).run(list(model.output_names), feeds)
+    for n, g, o, r in zip(model.output_names, got, ortv, ref):
+        assert parity_error(g, r) <= PARITY_TOL, n
+        assert parity_error(g, o) <= PARITY_TOL, n
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_every_node_has_a_stage_prefix(name, exported):
+    spec, _, path, _ = exported[name]
+    graph = onnx.load(str(path)).graph
+    assert unstaged_nodes(graph, spec.stages) == []
+    for stage in spec.stages:  # each stage has compute of its own
+        assert any(n.name.startswith(f"/{stage}/") for n in graph.node), stage
+    assert sum(n.op_type == "Conv" for n in graph.node) > 0
+    assert all(n.name.startswith("/prediction/") for n in graph.node if n.op_type == "Conv")
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_contract_round_trips(name, exported):
+    spec, model, path, report = exported[name]
+    meta = _session(path).get_modelmeta().custom_metadata_map
+    assert all(k.startswith(C.PREFIX) for k in meta)
+    con = C.parse_contract(meta)
+    assert con.version == C.FORMAT_VERSION
+    assert (con.spec_name, con.model_type) == (spec.name, spec.type)
+    assert con.spec_toml == spec.raw and con.spec_hash == spec_hash(spec)
+    assert spec_hash(parse_spec(con.spec_toml)) == con.spec_hash
+    assert con.code_hash == runs.code_hash()
+    assert con.input_names == list(model.input_names) and con.output_names == list(model.output_names)
+    layers = {i["name"]: i["layer"] for i in con.inputs}
+    assert [layers[l] for l in spec.inputs.layers] == list(spec.inputs.layers)
+    assert all(i["layout"] == "NCHW" and i["transfer"] == "linear" for i in con.inputs)
+    assert {i["name"]: i["channels"] for i in con.inputs}["color"] == 3
+    assert con.stage_names == list(spec.stages)
+    assert con.stage_of(f"/{spec.stages[-1]}/Mul_3") == spec.stages[-1] and con.stage_of("/other/Mul") is None
+    assert [(s["name"], s["channels"], s["input"], s["output"]) for s in con.state] == \
+        [(s.name, s.channels, f"prev_{s.name}", f"next_{s.name}") for s in spec.state]
+    assert con.history == ("history" if spec.state else "")
+    assert con.paper == dict(spec.paper)
+    assert con.export["opset"] >= 17 and con.export["parity_max_rel_error"] == report.max_parity_error
+    assert C.parse_contract(C.contract_metadata(con)) == con
+
+
+def test_parse_contract_errors(exported):
+    good = _session(next(iter(exported.values()))[2]).get_modelmeta().custom_metadata_map
+    with pytest.raises(ValueError, match="not an mcdenoise model"):
+        C.parse_contract({})
+    with pytest.raises(ValueError, match="not an mcdenoise model"):
+        C.parse_contract({"producer": "someone"})
+    with pytest.raises(ValueError, match="newer than this mcdenoise reads"):
+        C.parse_contract({**good, C.KEY_VERSION: str(C.FORMAT_VERSION + 1)})
+    with pytest.raises(ValueError, match=r"lacks key\(s\) \['mcdenoise.stages'\]"):
+        C.parse_contract({k: v for k, v in good.items() if k != C.KEY_STAGES})
+    with pytest.raises(ValueError, match="'mcdenoise.inputs' is not valid JSON"):
+        C.parse_contract({**good, C.KEY_INPUTS: "[{"})
+    bad_layout = json.loads(good[C.KEY_INPUTS])
+    bad_layout[0]["layout"] = "NHWC"
+    with pytest.raises(ValueError, match="only NCHW"):
+        C.parse_contract({**good, C.KEY_INPUTS: json.dumps(bad_layout)})
+
+
+def test_failed_parity_raises_and_leaves_no_file(tmp_path):
+    spec = load_spec(SPECS[0])
+    torch.manual_seed(0)
+    model = build_model(spec)
+    with pytest.raises(ExportError, match="onnxruntime differs from torch"):
+        export_model(spec, model, tmp_path / "m.onnx", tol=0.0)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ops_outside_stages_are_refused(tmp_path):
+    spec = load_spec(SPECS[0])
+    inner = build_model(spec).deploy()
+
+    class Wrapped(torch.nn.Module):  # its ops run under "/inner/..." and at the top level
+        def __init__(self):
+            super().__init__()
+            self.inner = inner
+            self.input_names, self.output_names = inner.input_names, inner.output_names
+            self.state_channels = inner.state_channels
+
+        def forward(self, *x):
+            return tuple(o * 1.5 for o in self.inner(*x))
+
+    with pytest.raises(ExportError, match="outside every stage"):
+        export_model(spec, Wrapped(), tmp_path / "w.onnx")
+    assert not (tmp_path / "w.onnx").exists()
+
+
+def test_opset_below_17_is_refused(tmp_path):
+    spec = load_spec(SPECS[0])
+    with pytest.raises(ValueError, match="opset must be >= 17"):
+        export_model(spec, build_model(spec), tmp_path / "m.onnx", opset=16)
+
+
+@pytest.mark.parametrize("name", SPECS)
+def test_export_run_rebuilds_from_the_run_folder_only(name, tmp_path):
+    """A run folder with perturbed (i.e. 'trained') weights and BN statistics: the export must
+    reproduce exactly those, and carry the run's code hash."""
+    spec = load_spec(name)
+    torch.manual_seed(1)
+    model = build_model(spec)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.uniform_(-0.2, 0.2)
+                m.running_var.uniform_(0.5, 2.0)
+    model.eval()
+    run = runs.init_run(tmp_path / "run", spec.path, {"spec": name})
+    runs.save_checkpoint(run, {"model": model.state_dict(), "step": 0})
+    (run / runs.CODE_HASH_FILE).write_text("f" * 64 + "\n")
+    rep = export_run(run, tmp_path / "m.onnx")
+    assert rep.max_parity_error <= PARITY_TOL
+    sess = _session(tmp_path / "m.onnx")
+    assert C.parse_contract(sess.get_modelmeta().custom_metadata_map).code_hash == "f" * 64
+    feeds = example_inputs(model, 1, 21, 30, seed=9)
+    got = sess.run(list(model.output_names), feeds)
+    for g, r in zip(got, _torch(model, feeds)):
+        assert parity_error(g, r) <= PARITY_TOL
+
+
+def test_export_command(tmp_path, capsys):
+    from runtime.cli import main
+
+    spec = load_spec(SPECS[0])
+    torch.manual_seed(0)
+    run = runs.init_run(tmp_path / "run", spec.path, {})
+    runs.save_checkpoint(run, {"model": build_model(spec).state_dict()})
+    assert main(["export", str(run), "--out", str(tmp_path / "cli.onnx"), "--opset", "17"]) == 0
+    assert "max relative error" in capsys.readouterr().out
+    assert C.parse_contract(_session(tmp_path / "cli.onnx").get_modelmeta().custom_metadata_map).spec_name == spec.name
+    assert main(["export", str(tmp_path / "missing"), "--out", str(tmp_path / "x.onnx")]) == 2

@@ -1,0 +1,318 @@
+"""WSKPN model: shapes, RepVGG fusion, kernel paths (vs a brute-force Eq. 3-4), temporal
+accumulation, gradients, robustness to extreme importance values."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from training.models import example_inputs
+from training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, RepVGGBlock, ReconstructionStage, WSKPNParams,
+                                   apply_kernel_boxsum, apply_kernel_unfold, downsample2, fuse_kernels,
+                                   importance_weights, pad_to_multiple, temporal_accumulate, upsample2)
+from training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
+
+WSKPN_SPECS = [n for n in list_specs() if load_spec(n).type == "wskpn"]
+
+
+def _tensors(model, n, h, w, seed=0, dtype=torch.float32):
+    feeds = example_inputs(model, n, h, w, seed=seed)
+    return [torch.from_numpy(feeds[k]).to(dtype) for k in model.input_names]
+
+
+def _randomise_bn(model, gen):
+    """Non-trivial BatchNorm statistics and affine parameters (fresh ones are identities)."""
+    for m in model.modules():
+        if isinstance(m, torch.nn.BatchNorm2d):
+            c = m.num_features
+            m.running_mean.copy_(torch.randn(c, generator=gen) * 0.3)
+            m.running_var.copy_(torch.rand(c, generator=gen) * 1.5 + 0.2)
+            with torch.no_grad():
+                m.weight.copy_(torch.rand(c, generator=gen) + 0.5)
+                m.bias.copy_(torch.randn(c, generator=gen) * 0.2)
+
+
+def _brute_force_kernel(x: np.ndarray, imp: np.ndarray, k: int) -> np.ndarray:
+    """Eq. 3-4 pixel by pixel: w_p(q) = exp I(q) / sum_{q' in window(p), in image} exp I(q')."""
+    _, c, h, w = x.shape
+    r = k // 2
+    out = np.zeros_like(x)
+    for y in range(h):
+        for xx in range(w):
+            ys, xs = slice(max(0, y - r), min(h, y + r + 1)), slice(max(0, xx - r), min(w, xx + r + 1))
+            wts = np.exp(imp[0, 0, ys, xs])
+            out[0, :, y, xx] = (x[0][:, ys, xs] * wts).sum(axis=(1, 2)) / wts.sum()
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# shapes and interface
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+@pytest.mark.parametrize("size", [(16, 24), (13, 18)])
+def test_forward_shapes_and_finite(name, size):
+    torch.manual_seed(0)
+    model = build_model(load_spec(name))
+    outs = model(*_tensors(model, 2, *size))
+    assert isinstance(outs, tuple) and len(outs) == len(model.output_names)
+    assert outs[0].shape == (2, 3, *size)
+    for o, n in zip(outs[1:], model.output_names[1:]):
+        assert o.shape == (2, model.state_channels[n[len("next_"):]], *size)
+    assert all(torch.isfinite(o).all() for o in outs)
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_forward_rejects_wrong_input_count(name):
+    model = build_model(load_spec(name))
+    with pytest.raises(TypeError, match="takes"):
+        model(*_tensors(model, 1, 8, 8)[:-1])
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_output_is_a_convex_combination_of_demodulated_input(name):
+    """Every kernel weight and fusion weight is in [0, 1] and sums to 1 (and Eq. 7 with α in
+    [0, 1] keeps a constant image constant): a constant irradiance image comes back exactly."""
+    torch.manual_seed(1)
+    model = build_model(load_spec(name)).eval()
+    t = _tensors(model, 1, 20, 28)
+    names = model.input_names
+    albedo = t[names.index("albedo")]
+    t[names.index("color")] = 0.7 * (albedo + ALBEDO_EPS)  # irradiance 0.7 everywhere
+    if "history" in names:
+        t[names.index("history")] = torch.zeros_like(t[names.index("history")])
+    with torch.no_grad():
+        out = model(*t)[0]
+    torch.testing.assert_close(out, 0.7 * (albedo.expand_as(out) + ALBEDO_EPS), rtol=1e-5, atol=1e-6)
+
+
+def test_builder_validates_stages_state_and_layers():
+    raw = load_spec("wskpn-3").raw
+    with pytest.raises(SpecError, match=r"stages must be \['temporal', 'prediction', 'reconstruction'\]"):
+        build_model(parse_spec(raw.replace('"temporal", "prediction", "reconstruction"',
+                                           '"prediction", "temporal", "reconstruction"'), "s.toml"))
+    with pytest.raises(SpecError, match=r"\[\[state\]\] must be \[\('accum', 3\)\]"):
+        build_model(parse_spec(raw.replace("channels = 3", "channels = 4"), "s.toml"))
+    with pytest.raises(SpecError, match=r"\[inputs\]\.layers must be"):
+        build_model(parse_spec(raw.replace('"color", "albedo", "normal", "depth"', '"color", "albedo", "normal"'),
+                               "s.toml"))
+    with pytest.raises(SpecError, match=r"\[params\]: kernel_sizes: need odd sizes"):
+        build_model(parse_spec(raw.replace("kernel_sizes = [3, 5, 7, 9, 11, 13]", "kernel_sizes = [3, 4]"), "s.toml"))
+    with pytest.raises(SpecError, match=r"\[params\]: widths: need 1 positive"):
+        build_model(parse_spec(raw.replace("widths = [16]", "widths = [16, 8]"), "s.toml"))
+
+
+# ----------------------------------------------------------------------------------------------
+# RepVGG re-parameterisation
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("batchnorm", [True, False])
+@pytest.mark.parametrize("cin,cout,act", [(6, 6, True), (5, 7, True), (7, 4, False)])
+def test_repvgg_fused_equals_multi_branch(batchnorm, cin, cout, act):
+    """float64: fused == multi-branch to 1e-12 (the fusion is exact algebra); float32: 1e-5
+    relative to the output's largest magnitude (rounding of 4 summed convolutions)."""
+    gen = torch.Generator().manual_seed(cin * 10 + cout)
+    block = RepVGGBlock(cin, cout, act=act, batchnorm=batchnorm)
+    _randomise_bn(block, gen)
+    block.eval()
+    x = torch.randn(2, cin, 11, 9, generator=gen)
+    with torch.no_grad():
+        ref32, fused32 = block(x), block.fuse()(x)
+        b64 = block.double()
+        ref64, fused64 = b64(x.double()), b64.fuse()(x.double())
+    assert (ref64 - fused64).abs().max() <= 1e-12 * ref64.abs().max()
+    assert (ref32 - fused32).abs().max() <= 1e-5 * ref32.abs().max()
+    assert fused64.shape == ref64.shape == (2, cout, 11, 9)
+    if act:
+        assert (ref32 >= 0).all() and (ref32 == 0).any()
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_deployed_model_equals_training_form(name):
+    """model.eval() vs model.deploy() (all blocks fused, non-trivial BN statistics), float64,
+    so any fusion error shows above rounding: relative 1e-10."""
+    torch.manual_seed(2)
+    model = build_model(load_spec(name)).double()
+    _randomise_bn(model, torch.Generator().manual_seed(3))
+    model.eval()
+    deployed = model.deploy()
+    assert not any(isinstance(m, RepVGGBlock) for m in deployed.modules())
+    assert any(isinstance(m, RepVGGBlock) for m in model.modules())
+    t = _tensors(model, 1, 17, 22, dtype=torch.float64)
+    with torch.no_grad():
+        for a, b in zip(model(*t), deployed(*t)):
+            assert (a - b).abs().max() <= 1e-10 * a.abs().max()
+
+
+# ----------------------------------------------------------------------------------------------
+# kernel application: unfold == boxsum == brute force, borders included
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("k", [1, 3, 5, 13])
+def test_kernel_paths_equal_brute_force_including_borders(k):
+    """On a 9×11 image every k=13 window crosses a border; float64, tolerance 1e-12 relative."""
+    gen = torch.Generator().manual_seed(k)
+    x = torch.rand(1, 3, 9, 11, generator=gen, dtype=torch.float64) * 5
+    imp = torch.randn(1, 1, 9, 11, generator=gen, dtype=torch.float64) * 3
+    ref = torch.from_numpy(_brute_force_kernel(x.numpy(), imp.numpy(), k))
+    box = apply_kernel_boxsum(x, importance_weights(imp), k)
+    unf = apply_kernel_unfold(x, imp, k)
+    for got in (box, unf):
+        assert got.shape == x.shape
+        assert (got - ref).abs().max() <= 1e-12 * ref.abs().max()
+
+
+def test_fused_kernels_unfold_equals_boxsum_float32():
+    """The fused six-kernel reconstruction in float32: paths agree to 1e-5 relative."""
+    gen = torch.Generator().manual_seed(5)
+    x = torch.rand(2, 3, 23, 31, generator=gen) * 10
+    imp = torch.randn(2, 6, 23, 31, generator=gen) * 4
+    logits = torch.randn(2, 6, 23, 31, generator=gen)
+    sizes = (3, 5, 7, 9, 11, 13)
+    box = fuse_kernels(x, imp, logits, sizes, "boxsum")
+    unf = fuse_kernels(x, imp, logits, sizes, "unfold")
+    assert (box - unf).abs().max() <= 1e-5 * unf.abs().max()
+    with pytest.raises(ValueError, match="kernel_path"):
+        fuse_kernels(x, imp, logits, sizes, "im2col")
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_model_kernel_paths_agree(name):
+    torch.manual_seed(4)
+    model = build_model(load_spec(name)).eval()
+    t = _tensors(model, 1, 19, 26)
+    with torch.no_grad():
+        box = model.deploy("boxsum")(*t)[0]
+        unf = model.deploy("unfold")(*t)[0]
+    assert model.kernel_path == "boxsum"
+    assert (box - unf).abs().max() <= 1e-5 * unf.abs().max()
+
+
+def test_fusion_weights_select_a_kernel():
+    """Logits strongly favouring kernel i give R_i (Eq. 5), kernel 3 ≠ kernel 13."""
+    gen = torch.Generator().manual_seed(6)
+    x = torch.rand(1, 3, 15, 15, generator=gen, dtype=torch.float64)
+    imp = torch.randn(1, 2, 15, 15, generator=gen, dtype=torch.float64)
+    for i, k in enumerate((3, 13)):
+        logits = torch.full((1, 2, 15, 15), -50.0, dtype=torch.float64)
+        logits[:, i] = 50.0
+        got = fuse_kernels(x, imp, logits, (3, 13))
+        want = apply_kernel_boxsum(x, importance_weights(imp[:, i:i + 1]), k)
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=0)
+    assert not torch.allclose(apply_kernel_boxsum(x, importance_weights(imp[:, :1]), 3),
+                              apply_kernel_boxsum(x, importance_weights(imp[:, :1]), 13))
+
+
+def test_multi_resolution_combination_is_eq7():
+    """α = 1: o = f − U(D(f)) + U(o_coarse); α = 0: o = f (two levels, demodulation undone)."""
+    params = WSKPNParams(blocks=1, widths=(4, 4), kernel_sizes=(3, 5), levels=2)
+    stage = ReconstructionStage(params)
+    gen = torch.Generator().manual_seed(7)
+    accum = torch.rand(1, 3, 12, 16, generator=gen, dtype=torch.float64)
+    albedo = torch.rand(1, 3, 12, 16, generator=gen, dtype=torch.float64)
+    fine = torch.randn(1, 5, 12, 16, generator=gen, dtype=torch.float64)
+    coarse = torch.randn(1, 4, 6, 8, generator=gen, dtype=torch.float64)
+    x = accum / (albedo + ALBEDO_EPS)
+    f = fuse_kernels(x, fine[:, :2], fine[:, 2:4], (3, 5))
+    c = fuse_kernels(downsample2(x), coarse[:, :2], coarse[:, 2:4], (3, 5))
+    for blend, want in ((1e3, f - upsample2(downsample2(f)) + upsample2(c)), (-1e3, f)):
+        fine[:, 4] = blend
+        got = stage(accum, albedo, [fine, coarse])
+        torch.testing.assert_close(got, want * (albedo + ALBEDO_EPS), rtol=1e-10, atol=1e-12)
+
+
+def test_pad_to_multiple():
+    x = torch.arange(2 * 5 * 7, dtype=torch.float32).view(1, 2, 5, 7)
+    y = pad_to_multiple(x, 4)
+    assert y.shape == (1, 2, 8, 8)
+    assert torch.equal(y[..., :5, :7], x) and torch.equal(y[..., 7, :7], x[..., 4, :])
+    assert pad_to_multiple(x, 1).shape == x.shape
+
+
+# ----------------------------------------------------------------------------------------------
+# temporal accumulation
+# ----------------------------------------------------------------------------------------------
+
+def test_temporal_accumulate_formula():
+    gen = torch.Generator().manual_seed(8)
+    color, prev = torch.rand(2, 1, 3, 5, 6, generator=gen)
+    h = torch.rand(1, 1, 5, 6, generator=gen)
+    a = 0.2
+    torch.testing.assert_close(temporal_accumulate(color, prev, h, a),
+                               h * (a * color + (1 - a) * prev) + (1 - h) * color)
+    torch.testing.assert_close(temporal_accumulate(color, prev, torch.ones_like(h), a), a * color + (1 - a) * prev)
+    huge = torch.full_like(prev, 1e30)
+    assert torch.equal(temporal_accumulate(color, huge, torch.zeros_like(h), a), color)
+
+
+@pytest.mark.parametrize("name", [n for n in WSKPN_SPECS if load_spec(n).state])
+def test_history_zero_ignores_prev_state(name):
+    torch.manual_seed(9)
+    model = build_model(load_spec(name)).eval()
+    t = _tensors(model, 1, 16, 20)
+    i_prev, i_hist = model.input_names.index("prev_accum"), model.input_names.index("history")
+    color = t[model.input_names.index("color")]
+    t[i_hist] = torch.zeros_like(t[i_hist])
+    with torch.no_grad():
+        out_a, acc_a = model(*t)
+        t[i_prev] = t[i_prev] * 100 + 7
+        out_b, acc_b = model(*t)
+        assert torch.equal(out_a, out_b) and torch.equal(acc_a, color) and torch.equal(acc_b, color)
+        t[i_hist] = torch.ones_like(t[i_hist])  # with history the state matters
+        out_c, acc_c = model(*t)
+    assert not torch.allclose(out_c, out_a)
+    torch.testing.assert_close(acc_c, 0.2 * color + 0.8 * t[i_prev])
+
+
+# ----------------------------------------------------------------------------------------------
+# gradients and robustness
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("path", ["boxsum", "unfold"])
+def test_gradcheck_kernel_application(path):
+    gen = torch.Generator().manual_seed(10)
+    x = torch.rand(1, 2, 5, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    imp = torch.randn(1, 2, 5, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    logits = torch.randn(1, 2, 5, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b, c: fuse_kernels(a, b, c, (3, 5), path), (x, imp, logits))
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_gradients_reach_every_parameter(name):
+    torch.manual_seed(11)
+    model = build_model(load_spec(name)).train()
+    t = _tensors(model, 2, 16, 16)
+    outs = model(*t)
+    sum(o.mean() for o in outs).backward()
+    for pname, p in model.named_parameters():
+        assert p.grad is not None, pname
+        assert torch.isfinite(p.grad).all(), pname
+    weights = [p for n, p in model.named_parameters() if n.endswith("conv.weight")]
+    assert all(p.grad.abs().sum() > 0 for p in weights)
+
+
+def test_huge_importance_and_logits_stay_finite_and_convex():
+    x = torch.rand(1, 3, 10, 12, dtype=torch.float32) + 0.1
+    imp = torch.zeros(1, 6, 10, 12)
+    imp[..., ::2, :] = 1e30
+    imp[..., 1::2, :] = -1e30
+    imp[..., 0, 0] = float("inf")
+    logits = torch.randn(1, 6, 10, 12) * 1e30
+    for path in ("boxsum", "unfold"):
+        out = fuse_kernels(x, imp, logits, (3, 5, 7, 9, 11, 13), path)
+        assert torch.isfinite(out).all(), path
+        assert (out >= x.min() * (1 - 1e-6)).all() and (out <= x.max() * (1 + 1e-6)).all(), path
+    w = importance_weights(torch.tensor([[[[1e30, -1e30, 0.0]]]]))
+    assert torch.equal(w, torch.exp(torch.tensor([[[[0.0, -2 * IMPORTANCE_BOUND, -IMPORTANCE_BOUND]]]])))
+
+
+@pytest.mark.parametrize("name", WSKPN_SPECS)
+def test_model_with_exploding_head_stays_finite(name):
+    torch.manual_seed(12)
+    model = build_model(load_spec(name)).eval()
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, RepVGGBlock) and not m.act:  # output blocks: importance and logits
+                m.branch5.conv.weight.mul_(1e6)
+        outs = model(*_tensors(model, 1, 16, 16))
+    assert all(torch.isfinite(o).all() for o in outs)
