@@ -1,0 +1,38 @@
+"""Shared fixtures.
+
+``tiny_dataset``: 2 procedural scenes x 3 frames at 64x64, 4 spp, 64 reference spp, rendered
+once per session by ``mcdenoise render`` in a subprocess (so Dr.Jit's LLVM set-up never
+depends on what the test process imported first).  ``MCDENOISE_TEST_VARIANT`` (auto,
+llvm_ad_rgb, scalar_rgb) picks the Mitsuba variant; skipped when Mitsuba is not installed.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: The command line of the tiny dataset; tests may rely on every value here.
+TINY_ARGS = ("--scenes", "2", "--frames", "3", "--spp", "4", "--ref-spp", "64", "--size", "64x64",
+             "--seed", "0", "--defocus", "off", "--camera-speed", "3")
+
+
+def test_variant() -> str:
+    return os.environ.get("MCDENOISE_TEST_VARIANT", "auto")
+
+
+test_variant.__test__ = False  # a helper, not a test
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory) -> str:
+    """Folder of the tiny rendered dataset (see module docstring)."""
+    pytest.importorskip("mitsuba", reason="rendering needs Mitsuba 3 (pip install mcdenoise[render])")
+    out = str(tmp_path_factory.mktemp("tiny") / "data")
+    cmd = [sys.executable, "-m", "runtime.cli", "render", "--out", out, *TINY_ARGS, "--variant", test_variant()]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0:
+        raise RuntimeError(f"tiny render failed ({' '.join(cmd)}):\n{proc.stderr[-4000:]}")
+    return out
