@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         parser, module = build_parser(argv[0])
         args = parser.parse_args(argv[1:])
         return int(module.main(args) or 0)
-    except (CommandError, FrameError, FileNotFoundError, ValueError) as e:
+    except (CommandError, FrameError, FileNotFoundError, FileExistsError, ValueError) as e:
         print(f"mcdenoise {argv[0]}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

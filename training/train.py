@@ -225,9 +225,9 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             elapsed = time.perf_counter() - t_start
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(loss=f"{float(loss):.4f}", epoch=epoch)
+                bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, float(loss))
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item())
                 save()
             if budget_s is not None and elapsed >= budget_s:
                 break
@@ -235,7 +235,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"]:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, float(loss))
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item())
             save()
     if bar is not None:
         bar.close()
