@@ -11,9 +11,15 @@ benchmarks need no run folder; :func:`export_run` rebuilds the model from a run 
    runtime splits profiler time by these prefixes);
 3. writes the contract (:mod:`runtime.contract`) into ``metadata_props``, saves, and runs
    ``onnx.checker.check_model(path, full_check=True)``;
-4. compares onnxruntime against the *training-form* torch model (eval mode, unfused) on inputs
-   of a different size than the trace (:data:`CHECK_SIZE`, batch 2), for every output:
-   :func:`parity_error` must be <= :data:`PARITY_TOL` (float32 both sides).
+4. compares onnxruntime (float32) against the *training-form* torch model (eval mode,
+   unfused) evaluated in float64, on inputs of a different size than the trace
+   (:data:`CHECK_SIZE`, batch 2), for every output (:func:`parity_errors`).  The max relative
+   error on non-dark values (:func:`parity_error`) must be <= :data:`PARITY_TOL`, or, where
+   torch's own float32 result is further than that from float64, within
+   :data:`FLOAT32_MARGIN` times torch float32's error: float32 cannot resolve a value that
+   comes out of a cancellation (an untrained multi-resolution WSKPN's Eq. 7 turns ±30 terms
+   into −0.01 here and there), and the export must not be blamed for that.  Both numbers are
+   reported.
 
 The file is written to a temporary name and moved into place only when all checks pass.
 """
@@ -36,8 +42,10 @@ DEFAULT_OPSET = 17
 #: not square, and a multiple of 4 neither in H nor in W).
 EXPORT_SIZE = (64, 64)
 CHECK_SIZE = (54, 78)
-#: Max relative error of onnxruntime vs torch (float32), see :func:`parity_error`.
+#: Max relative error of the float32 graph vs torch float64, see :func:`parity_error`.
 PARITY_TOL = 1e-4
+#: ... or this many times torch float32's own error vs float64, if that is larger.
+FLOAT32_MARGIN = 2.0
 #: A value is "dark" when its magnitude is below this fraction of the tensor's mean magnitude;
 #: there float32 rounding of sums of much larger values dominates any relative error, so its
 #: error is measured relative to DARK_FRACTION·mean instead of to itself.
@@ -57,6 +65,7 @@ class ExportReport:
     opset: int
     nodes: int
     parity: dict[str, float] = field(default_factory=dict)
+    torch_float32: dict[str, float] = field(default_factory=dict)
     check_size: tuple[int, int] = CHECK_SIZE
     seconds: float = 0.0
 
@@ -161,12 +170,35 @@ def _torch_outputs(model, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
     return [o.numpy() for o in outs]
 
 
+def parity_errors(model, run_graph, feeds: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    """{output name: (graph error, torch float32 error)}, both :func:`parity_error` against
+    ``model`` evaluated in float64 (a copy; ``model`` itself is untouched).
+
+    run_graph: feeds (float32 arrays by input name) -> list of outputs in ``model.output_names``
+    order, e.g. an onnxruntime session's ``run``.
+    """
+    import copy
+
+    ref32 = _torch_outputs(model, feeds)
+    ref64 = _torch_outputs(copy.deepcopy(model).double().eval(),
+                           {k: v.astype(np.float64) for k, v in feeds.items()})
+    got = run_graph(feeds)
+    return {n: (parity_error(g, r64), parity_error(r32, r64))
+            for n, g, r32, r64 in zip(model.output_names, got, ref32, ref64)}
+
+
+def parity_ok(errors: dict[str, tuple[float, float]], tol: float = PARITY_TOL) -> bool:
+    """Every output's graph error <= max(tol, FLOAT32_MARGIN · torch float32 error)."""
+    return all(g <= max(tol, FLOAT32_MARGIN * t) for g, t in errors.values())
+
+
 def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET, *,
                  code_hash: str | None = None, export_size: tuple[int, int] = EXPORT_SIZE,
                  check_size: tuple[int, int] = CHECK_SIZE, seed: int = 0,
                  tol: float = PARITY_TOL) -> ExportReport:
     """Export ``model`` (built from ``spec``; trained or not) to ``out_path`` and check it
-    (see the module docstring).  ``code_hash`` defaults to the current source tree's.
+    (see the module docstring).  ``code_hash`` defaults to the current source tree's.  The
+    model is evaluated in eval mode and handed back in the mode it came in.
 
     Raises ExportError when a check fails (nothing is left at ``out_path`` then).
     """
@@ -183,6 +215,7 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_path.with_name(out_path.name + ".tmp")
+    was_training = model.training
     model.eval()
     deployed = model.deploy() if hasattr(model, "deploy") else model
     feeds = example_inputs(deployed, 1, *export_size, seed=seed)
@@ -206,20 +239,21 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
                               f"{list(spec.stages)}, e.g. {bad[:5]}; move their ops into a stage module")
 
         check_feeds = example_inputs(model, 2, *check_size, seed=seed + 1)
-        ref = _torch_outputs(model, check_feeds)
         so = ort.SessionOptions()
         so.log_severity_level = 3
         sess = ort.InferenceSession(proto.SerializeToString(), so, providers=["CPUExecutionProvider"])
-        got = sess.run(list(model.output_names), check_feeds)
-        parity = {n: parity_error(g, r) for n, g, r in zip(model.output_names, got, ref)}
-        if max(parity.values()) > tol:
-            raise ExportError(f"{spec.name}: onnxruntime differs from torch at {check_size[1]}x{check_size[0]}: "
-                              f"{ {k: f'{v:.3g}' for k, v in parity.items()} } > {tol:g} "
-                              f"(max relative error, dark < {DARK_FRACTION:g}·mean)")
+        errors = parity_errors(model, lambda f: sess.run(list(model.output_names), f), check_feeds)
+        parity = {n: e[0] for n, e in errors.items()}
+        if not parity_ok(errors, tol):
+            raise ExportError(
+                f"{spec.name}: onnxruntime differs from torch at {check_size[1]}x{check_size[0]}: max relative "
+                f"error vs float64 {', '.join(f'{n} {g:.3g} (torch float32 {t:.3g})' for n, (g, t) in errors.items())}"
+                f" > max({tol:g}, {FLOAT32_MARGIN:g}x torch float32) (dark: < {DARK_FRACTION:g}·mean)")
 
         info = {"opset": opset, "torch": torch.__version__, "onnx": onnx.__version__,
                 "exporter": "torchscript", "export_size": list(export_size),
-                "parity_size": list(check_size), "parity_max_rel_error": max(parity.values())}
+                "parity_size": list(check_size), "parity_max_rel_error": max(parity.values()),
+                "parity_torch_float32_error": max(e[1] for e in errors.values())}
         contract = build_contract(spec, model, code_hash or current_code_hash(), info)
         meta = contract_metadata(contract)
         del proto.metadata_props[:]
@@ -232,10 +266,11 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
         parse_contract({p.key: p.value for p in onnx.load(str(tmp), load_external_data=False).metadata_props})
         os.replace(tmp, out_path)
     finally:
+        model.train(was_training)
         if tmp.exists():
             tmp.unlink()
     return ExportReport(path=out_path, opset=opset, nodes=len(proto.graph.node), parity=parity,
-                        check_size=tuple(check_size), seconds=time.perf_counter() - t0)
+                        torch_float32={n: e[1] for n, e in errors.items()}, check_size=tuple(check_size), seconds=time.perf_counter() - t0)
 
 
 def export_run(run_dir: str | os.PathLike, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET) -> ExportReport:
@@ -262,6 +297,7 @@ def add_arguments(p) -> None:
 def main(args) -> int:
     rep = export_run(args.run, args.out, args.opset)
     print(f"wrote {rep.path} (opset {rep.opset}, {rep.nodes} nodes, {rep.seconds:.1f} s); "
-          f"onnxruntime vs torch at {rep.check_size[1]}x{rep.check_size[0]}: max relative error "
-          f"{rep.max_parity_error:.2e} (tolerance {PARITY_TOL:g})")
+          f"onnxruntime vs torch (float64) at {rep.check_size[1]}x{rep.check_size[0]}: max relative error "
+          f"{rep.max_parity_error:.2e} (torch float32: {max(rep.torch_float32.values()):.2e}; "
+          f"tolerance {PARITY_TOL:g})")
     return 0

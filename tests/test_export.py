@@ -11,8 +11,8 @@ import pytest
 import torch
 from onnx.reference import ReferenceEvaluator
 
-from export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, PARITY_TOL, ExportError, export_model,
-                                export_run, parity_error, unstaged_nodes)
+from export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, FLOAT32_MARGIN, PARITY_TOL, ExportError,
+                                export_model, export_run, parity_error, parity_errors, parity_ok, unstaged_nodes)
 from runtime import contract as C
 from training import runs
 from training.models import example_inputs
@@ -46,6 +46,15 @@ def _torch(model, feeds):
         return [o.numpy() for o in model(*[torch.from_numpy(feeds[n]) for n in model.input_names])]
 
 
+def _assert_parity(errors):
+    """Graph vs torch float64 within PARITY_TOL, or within FLOAT32_MARGIN x torch float32's
+    own error where float32 cannot do better (cancellation); torch float32 itself is sane."""
+    for name, (graph, torch32) in errors.items():
+        assert graph <= max(PARITY_TOL, FLOAT32_MARGIN * torch32), (name, graph, torch32)
+        assert torch32 < 1e-2, (name, torch32)
+    assert parity_ok(errors)
+
+
 def test_parity_error_definition():
     ref = np.array([1.0, 2.0, 1e-9, 0.0], np.float32)
     assert parity_error(ref, ref) == 0.0
@@ -64,8 +73,8 @@ def test_export_checks_pass(name, exported):
     onnx.checker.check_model(str(path), full_check=True)
     proto = onnx.load(str(path))
     assert proto.opset_import[0].version >= 17
-    assert report.max_parity_error <= PARITY_TOL
-    assert set(report.parity) == set(model.output_names)
+    assert set(report.parity) == set(report.torch_float32) == set(model.output_names)
+    _assert_parity({n: (report.parity[n], report.torch_float32[n]) for n in report.parity})
 
 
 @pytest.mark.parametrize("name", SPECS)
@@ -81,16 +90,16 @@ def test_dynamic_axes(name, exported):
 
 @pytest.mark.parametrize("name", SPECS)
 def test_onnxruntime_matches_torch_at_another_size(name, exported):
-    """Odd size (neither export nor check size), batch 3: max relative error <= 1e-4 on values
-    >= DARK_FRACTION·mean|ref| (dark values: absolute error <= 1e-4 · that floor)."""
+    """Odd size (neither export nor check size), batch 3: max relative error vs torch float64
+    <= 1e-4 on values >= DARK_FRACTION·mean|ref| (dark values: absolute error <= 1e-4 · that
+    floor), unless torch float32 itself is worse (see export.onnx_export)."""
     _, model, path, _ = exported[name]
     feeds = example_inputs(model, 3, 37, 29, seed=5)
-    ref = _torch(model, feeds)
-    got = _session(path).run(list(model.output_names), feeds)
-    for n, g, r in zip(model.output_names, got, ref):
+    sess = _session(path)
+    _assert_parity(parity_errors(model, lambda f: sess.run(list(model.output_names), f), feeds))
+    for n, g, r in zip(model.output_names, sess.run(list(model.output_names), feeds), _torch(model, feeds)):
         assert g.shape == r.shape == (3, r.shape[1], 37, 29)
         assert np.mean(np.abs(r) >= DARK_FRACTION * np.mean(np.abs(r))) > 0.9  # mostly non-dark
-        assert parity_error(g, r) <= PARITY_TOL, n
 
 
 @pytest.mark.parametrize("name", SPECS)
@@ -98,11 +107,11 @@ def test_reference_evaluator_matches_on_tiny_input(name, exported):
     """onnx.reference (a plain-numpy ONNX interpreter) agrees with torch and onnxruntime."""
     _, model, path, _ = exported[name]
     feeds = example_inputs(model, 1, 8, 12, seed=6)
-    ref = _torch(model, feeds)
-    got = ReferenceEvaluator(str(path)).run(list(model.output_names), feeds)
+    evaluator = ReferenceEvaluator(str(path))
+    _assert_parity(parity_errors(model, lambda f: evaluator.run(list(model.output_names), f), feeds))
     ortv = _session(path).run(list(model.output_names), feeds)
-    for n, g, o, r in zip(model.output_names, got, ortv, ref):
-        assert parity_error(g, r) <= PARITY_TOL, n
+    for n, g, o in zip(model.output_names, evaluator.run(list(model.output_names), feeds), ortv):
+        assert g.shape == o.shape == (1, o.shape[1], 8, 12)
         assert parity_error(g, o) <= PARITY_TOL, n
 
 
@@ -161,12 +170,24 @@ def test_parse_contract_errors(exported):
         C.parse_contract({**good, C.KEY_INPUTS: json.dumps(bad_layout)})
 
 
-def test_failed_parity_raises_and_leaves_no_file(tmp_path):
-    spec = load_spec(SPECS[0])
+@pytest.mark.parametrize("name", SPECS)
+def test_failed_parity_raises_and_leaves_no_file(name, tmp_path):
+    """A deploy() that changes the function (a fusion bug) must fail the export."""
+    spec = load_spec(name)
     torch.manual_seed(0)
     model = build_model(spec)
+    honest = model.deploy
+
+    def broken_deploy():
+        d = honest()
+        conv = next(m for m in d.modules() if isinstance(m, torch.nn.Conv2d))
+        with torch.no_grad():
+            conv.weight.mul_(1.001)
+        return d
+
+    model.deploy = broken_deploy
     with pytest.raises(ExportError, match="onnxruntime differs from torch"):
-        export_model(spec, model, tmp_path / "m.onnx", tol=0.0)
+        export_model(spec, model, tmp_path / "m.onnx")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -214,13 +235,11 @@ def test_export_run_rebuilds_from_the_run_folder_only(name, tmp_path):
     runs.save_checkpoint(run, {"model": model.state_dict(), "step": 0})
     (run / runs.CODE_HASH_FILE).write_text("f" * 64 + "\n")
     rep = export_run(run, tmp_path / "m.onnx")
-    assert rep.max_parity_error <= PARITY_TOL
+    _assert_parity({n: (rep.parity[n], rep.torch_float32[n]) for n in rep.parity})
     sess = _session(tmp_path / "m.onnx")
     assert C.parse_contract(sess.get_modelmeta().custom_metadata_map).code_hash == "f" * 64
     feeds = example_inputs(model, 1, 21, 30, seed=9)
-    got = sess.run(list(model.output_names), feeds)
-    for g, r in zip(got, _torch(model, feeds)):
-        assert parity_error(g, r) <= PARITY_TOL
+    _assert_parity(parity_errors(model, lambda f: sess.run(list(model.output_names), f), feeds))
 
 
 def test_export_command(tmp_path, capsys):
