@@ -19,11 +19,9 @@ TINY_ARGS = ("--scenes", "2", "--frames", "3", "--spp", "4", "--ref-spp", "64", 
              "--seed", "0", "--defocus", "off", "--camera-speed", "3")
 
 
-def test_variant() -> str:
+def render_variant() -> str:
+    """The Mitsuba variant the render tests ask for (auto unless MCDENOISE_TEST_VARIANT says)."""
     return os.environ.get("MCDENOISE_TEST_VARIANT", "auto")
-
-
-test_variant.__test__ = False  # a helper, not a test
 
 
 @pytest.fixture(scope="session")
@@ -31,7 +29,7 @@ def tiny_dataset(tmp_path_factory) -> str:
     """Folder of the tiny rendered dataset (see module docstring)."""
     pytest.importorskip("mitsuba", reason="rendering needs Mitsuba 3 (pip install mcdenoise[render])")
     out = str(tmp_path_factory.mktemp("tiny") / "data")
-    cmd = [sys.executable, "-m", "runtime.cli", "render", "--out", out, *TINY_ARGS, "--variant", test_variant()]
+    cmd = [sys.executable, "-m", "runtime.cli", "render", "--out", out, *TINY_ARGS, "--variant", render_variant()]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise RuntimeError(f"tiny render failed ({' '.join(cmd)}):\n{proc.stderr[-4000:]}")

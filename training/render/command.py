@@ -95,7 +95,7 @@ def plan(args) -> list[dict]:
     """One job per sequence: scene seed, folder name, frames, and the passes it will render
     (for the progress bar).  Pure: no rendering, no Mitsuba."""
     from training.render import procedural
-    from training.render.renderer import REF_TIME_STRATA
+    from training.render.renderer import passes_per_frame
 
     jobs = []
     for i in range(args.scenes):
@@ -112,9 +112,8 @@ def plan(args) -> list[dict]:
         else:
             name = procedural.scene_name(seed)
         frames = 8 if frames is None else frames
-        strata = min(args.ref_spp, REF_TIME_STRATA) if blur else 1
-        jobs.append({"index": i, "seed": seed, "name": name, "frames": frames, "motion_blur": blur,
-                     "defocus": defocus, "passes": frames * (args.spp + strata)})
+        jobs.append({"seed": seed, "name": name, "frames": frames, "motion_blur": blur,
+                     "defocus": defocus, "passes": frames * passes_per_frame(args.spp, args.ref_spp, blur)})
     return jobs
 
 
@@ -154,7 +153,7 @@ def _read_manifest(out: str) -> dict:
 # Running a job (in this process or a worker)
 # ----------------------------------------------------------------------------------------------
 
-def run_job(job: dict, args_dict: dict, variant: str, progress=None, threads: int = 0) -> dict:
+def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     """Render one sequence; returns its manifest entry.  ``progress``: a callable taking the
     number of finished render calls, or a queue to put them on (worker processes)."""
     from training.render import procedural
@@ -162,10 +161,6 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None, threads: in
     from training.render.variant import init_mitsuba
 
     mi = init_mitsuba(variant)
-    if threads:
-        import drjit as dr
-
-        dr.set_thread_count(threads)
     a = argparse.Namespace(**args_dict)
     w, h = a.size
     folder = os.path.join(a.out, job["name"])
@@ -186,8 +181,17 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None, threads: in
 
 def _run_serial(todo, args_dict, variant, bar, done):
     for k, job in enumerate(todo):
-        bar.set_postfix_str(f"scene {k + 1}/{len(todo)} {job['name']}")
-        done(run_job(job, args_dict, variant, progress=bar.update))
+        per_frame = job["passes"] // job["frames"]
+        count = [0]
+
+        def tick(n: int) -> None:  # called only while this job runs, so the loop variables hold
+            count[0] += n
+            frame = min(count[0] // per_frame + 1, job["frames"])
+            bar.set_postfix_str(f"scene {k + 1}/{len(todo)} frame {frame}/{job['frames']}", refresh=False)
+            bar.update(n)
+
+        tick(0)
+        done(run_job(job, args_dict, variant, progress=tick))
 
 
 def _run_parallel(todo, args_dict, variant, bar, done, workers):
@@ -195,11 +199,12 @@ def _run_parallel(todo, args_dict, variant, bar, done, workers):
     import queue as queue_mod
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    threads = max(1, (os.cpu_count() or 1) // workers)
+    # Each worker keeps Dr.Jit's full thread pool: with dr.set_thread_count(1) scene loading
+    # deadlocks, and a little oversubscription costs less than idle cores between render calls.
     ctx = mp.get_context("spawn")  # fork would copy an initialised Dr.Jit/LLVM state
     with ctx.Manager() as manager, ProcessPoolExecutor(workers, mp_context=ctx) as pool:
         q = manager.Queue()
-        pending = {pool.submit(run_job, job, args_dict, variant, q, threads) for job in todo}
+        pending = {pool.submit(run_job, job, args_dict, variant, q) for job in todo}
         finished = 0
         try:
             while pending:

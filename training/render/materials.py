@@ -23,7 +23,8 @@ ROW_WIDTH = 8
 DEFAULT_F0 = 0.04
 
 
-def _class_name(text: str) -> str:
+def class_name(text: str) -> str:
+    """The class name a Mitsuba object's repr starts with, e.g. "RoughConductor"."""
     m = re.match(r"\s*(\w+)", text)
     return m.group(1) if m else ""
 
@@ -62,7 +63,7 @@ def bsdf_row(bsdf_repr: str, params, prefix: str = "") -> tuple[np.ndarray, str]
 
     Returns (row, class name).  Unknown BSDF classes get the diffuse row (roughness 1, zeros).
     """
-    cls = _class_name(bsdf_repr)
+    cls = class_name(bsdf_repr)
     if cls == "TwoSided":  # both sides share brdf[0] unless a second one is given; the front decides
         m = re.search(r"brdf\[0\]\s*=\s*(\w+)", bsdf_repr)
         inner = bsdf_repr[m.start(1):] if m else ""

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -68,7 +68,6 @@ class SceneSpec:
     defocus: bool
     motion_blur: bool
     setting: str
-    info: dict = field(default_factory=dict)
 
 
 def scene_name(seed: int) -> str:
@@ -250,10 +249,10 @@ def noise_texture(rng: np.random.Generator, size: int = 128) -> np.ndarray:
     return (c0 + (c1 - c0) * n[..., None]).astype(np.float32)
 
 
-def sky_texture(rng: np.random.Generator, width: int = 256, height: int = 128) -> tuple[np.ndarray, dict]:
-    """Equirectangular sky (height, width, 3) float32 in Mitsuba's ``envmap`` layout (top row
-    is +y): a horizon-to-zenith gradient, a darker ground, and a Gaussian sun blob.  Returns
-    (image, info with the sun direction and size)."""
+def sky_texture(rng: np.random.Generator, width: int = 256, height: int = 128) -> np.ndarray:
+    """Equirectangular sky (height, width, 3) float32 linear radiance in Mitsuba's ``envmap``
+    layout (top row is +y): a horizon-to-zenith gradient, a darker ground, and a Gaussian sun
+    blob 1.5-4° wide, 10-65° above the horizon."""
     v = (np.arange(height) + 0.5) / height
     u = (np.arange(width) + 0.5) / width
     th, ph = np.meshgrid(v * math.pi, u * 2 * math.pi, indexing="ij")
@@ -274,7 +273,7 @@ def sky_texture(rng: np.random.Generator, width: int = 256, height: int = 128) -
     ang = np.arccos(np.clip(d @ sun, -1, 1))
     strength = rng.uniform(200, 3000) * (math.radians(2.5) / sigma) ** 2  # keep the sun's power comparable
     img = img + strength * np.exp(-(ang / sigma) ** 2)[..., None] * np.array(random_color(rng, 0.9, 1.0))
-    return img.astype(np.float32), {"sun_direction": sun.tolist(), "sun_sigma_deg": math.degrees(sigma)}
+    return img.astype(np.float32)
 
 
 def write_assets(spec: SceneSpec, folder: str | os.PathLike) -> None:
@@ -464,18 +463,15 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     # lights
     n_emissive_spheres = int(rng.random() < 0.35) + int(rng.random() < 0.15)
     if setting == "outdoor":
-        sky, info = sky_texture(rng)
-        assets["sky.exr"] = sky
+        assets["sky.exr"] = sky_texture(rng)
         objects["environment"] = {"type": "envmap", "filename": "sky.exr", "scale": float(rng.uniform(0.5, 2.0)),
                                   "to_world": _matrix(rotation((0, 1, 0), rng.uniform(0, 360)))}
         n_area, n_point = int(rng.random() < 0.2), int(rng.random() < 0.3)
     else:
-        info = {}
         if rng.random() < 0.5:
             objects["environment"] = {"type": "constant", "radiance": _rgb(np.array(random_color(rng, 0.6, 1.0)) * rng.uniform(0.05, 0.4))}
         else:
-            sky, info = sky_texture(rng)
-            assets["sky.exr"] = sky
+            assets["sky.exr"] = sky_texture(rng)
             objects["environment"] = {"type": "envmap", "filename": "sky.exr", "scale": float(rng.uniform(0.1, 0.4))}
         n_area, n_point = int(rng.integers(1, 4)), int(rng.integers(0, 3))
     for i in range(n_area):
@@ -513,7 +509,7 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
                       focus_distance=focus, near_clip=0.01, far_clip=1000.0)
     return SceneSpec(seed=seed, name=scene_name(seed), objects=objects, assets=assets, intrinsics=intr,
                      path=path, materials=materials, defocus=use_defocus, motion_blur=use_blur,
-                     setting=setting, info={"sky": info} if info else {})
+                     setting=setting)
 
 
 def _fly_through(rng: np.random.Generator, centre: np.ndarray, azimuth: float, frames: int,

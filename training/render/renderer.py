@@ -5,10 +5,12 @@ Per frame t, with S samples per pixel:
 * S passes at 1 spp, each with its own seed (and, with motion blur, its own shutter time
   tau_s in [0, 1): the sensor sits at the path's pose at u = t + tau_s).  Each pass is two
   Mitsuba renders with the same seed and sensor: ``path`` for radiance and ``aov`` (albedo,
-  sh_normal, depth, position, shape_index) for the guides.  With the same seed both trace the
-  same primary rays, which is also all Mitsuba's ``aov`` integrator does when it wraps
-  ``path`` (it renders the inner integrator in a separate pass), at a third less cost.
-  The film uses a box filter so a pixel's value is its one sample.
+  sh_normal, position, shape_index) for the guides.  With the same seed both trace the same
+  primary rays; that is also all Mitsuba 3.9's ``aov`` integrator does when it wraps ``path``
+  (it renders the inner integrator in a separate pass and then runs it again inside its own),
+  so two calls cost about a third less than the wrapped one for identical output.  The film
+  uses a box filter so a pixel's value is its one sample.  depth is the distance from the
+  camera (lens) centre to the position.
 * material features from the per-shape table (:mod:`materials`) through ``shape_index``;
 * motion: the hit point X projected with the pose at u - 1 minus X projected with its own
   pose (not the pixel centre, which cancels the sample jitter); valid where X is a hit, lands
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time as _time
 from dataclasses import dataclass
 from typing import Callable, Optional
@@ -72,6 +75,16 @@ class Sequence:
     source: str
     max_depth: int = procedural.MAX_DEPTH
     info: Optional[dict] = None
+
+
+def ref_strata(ref_spp: int, motion_blur: bool) -> int:
+    """Render calls for one reference: one per shutter stratum with motion blur, else one."""
+    return min(ref_spp, REF_TIME_STRATA) if motion_blur else 1
+
+
+def passes_per_frame(spp: int, ref_spp: int, motion_blur: bool) -> int:
+    """Render calls per frame, as counted by ``render_frame``'s progress callback."""
+    return spp + ref_strata(ref_spp, motion_blur)
 
 
 def derive_seed(*words: int) -> int:
@@ -157,7 +170,7 @@ def user_scene(mi, xml: str, size: tuple[int, int], seed: int, frames: int | Non
     base = None
     if scene.sensors():
         sensor = scene.sensors()[0]
-        kind = materials._class_name(repr(sensor))
+        kind = materials.class_name(repr(sensor))
         if kind not in ("PerspectiveCamera", "ThinLensCamera"):
             raise ValueError(f"{xml}: sensor type {kind} is not supported (use perspective or thinlens)")
         p = mi.traverse(sensor)
@@ -194,7 +207,7 @@ def user_scene(mi, xml: str, size: tuple[int, int], seed: int, frames: int | Non
     intr = cam.Intrinsics(width, height, **base_intr)
     name = f"{os.path.splitext(os.path.basename(xml))[0]}_{seed:07d}"
     if not scene.emitters():
-        print(f"mcdenoise render: warning: {xml} has no emitters; frames will be black", flush=True)
+        print(f"mcdenoise render: warning: {xml} has no emitters; frames will be black", file=sys.stderr)
     return Sequence(name=name, seed=seed, scene=scene, intrinsics=intr, path=path, frames=frames,
                     defocus=intr.thin_lens, motion_blur=motion_blur, source=os.path.abspath(xml),
                     info={"shapes": len(scene.shapes())})
@@ -224,15 +237,6 @@ class SequenceRenderer:
         self._bboxes = {int(i): (np.asarray(s.bbox().min, np.float64).reshape(-1),
                                  np.asarray(s.bbox().max, np.float64).reshape(-1))
                         for i, s in zip(self.ids, seq.scene.shapes())}
-
-    @property
-    def passes_per_frame(self) -> int:
-        """Render calls per frame counted by the progress callback."""
-        return self.spp + self.ref_strata
-
-    @property
-    def ref_strata(self) -> int:
-        return min(self.ref_spp, REF_TIME_STRATA) if self.seq.motion_blur else 1
 
     def set_pose(self, to_world: np.ndarray) -> None:
         """Move the sensor (no kernel recompilation: the transform is a parameter)."""
@@ -311,7 +315,7 @@ class SequenceRenderer:
         """Reference radiance (H, W, 3) of frame t at ref_spp, and the seeds used.  ``stream``
         selects an independent set of seeds (1 is the stored reference)."""
         mi = self.mi
-        k = self.ref_strata
+        k = ref_strata(self.ref_spp, self.seq.motion_blur)
         counts = [self.ref_spp // k + (1 if i < self.ref_spp % k else 0) for i in range(k)]
         if self.seq.motion_blur:
             rng = np.random.default_rng([self.seq.seed, t, 8, stream])

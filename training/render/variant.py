@@ -102,10 +102,6 @@ def init_mitsuba(variant: str):
     return mi
 
 
-def describe_choice(variant: str, reason: str) -> str:
-    """One line for the log: which variant and why."""
-    return f"mcdenoise render: Mitsuba variant {variant} ({reason})"
-
-
 def announce(variant: str, reason: str) -> None:
-    print(describe_choice(variant, reason), file=sys.stderr)
+    """Say on stderr which variant renders and why."""
+    print(f"mcdenoise render: Mitsuba variant {variant} ({reason})", file=sys.stderr)
