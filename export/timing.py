@@ -18,6 +18,7 @@ import os
 import statistics
 import tempfile
 import time
+import warnings
 
 import numpy as np
 
@@ -84,9 +85,11 @@ def time_kernels(size: tuple[int, int], threads: int, warmup: int, repeats: int,
         with tempfile.TemporaryDirectory() as d:
             f = os.path.join(d, f"{path}.onnx")
             small = {k: v[..., :32, :32] for k, v in feeds.items()}
-            torch.onnx.export(op, tuple(torch.from_numpy(v) for v in small.values()), f, dynamo=False,
-                              opset_version=17, input_names=list(feeds), output_names=["out"],
-                              dynamic_axes={k: {0: "N", 2: "H", 3: "W"} for k in [*feeds, "out"]})
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                torch.onnx.export(op, tuple(torch.from_numpy(v) for v in small.values()), f, dynamo=False,
+                                  opset_version=17, input_names=list(feeds), output_names=["out"],
+                                  dynamic_axes={k: {0: "N", 2: "H", 3: "W"} for k in [*feeds, "out"]})
             sess = _session(f, threads)
             reps = repeats if path == "boxsum" or w * h <= 256 * 256 else max(3, repeats // 3)
             out[f"{path} ort"] = _median_ms(lambda: sess.run(None, feeds), warmup, reps)

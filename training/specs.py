@@ -142,7 +142,7 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
             raise SpecError(f"{where}: expected one of {_type_name(tp)}, got {value!r}")
         return value
     if origin is tuple:
-        (item_tp, *rest) = typing.get_args(tp)
+        item_tp = typing.get_args(tp)[0]
         if not isinstance(value, (list, tuple)):
             raise SpecError(f"{where}: expected {_type_name(tp)}, got {type(value).__name__} {value!r}")
         return tuple(_convert(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
