@@ -159,14 +159,20 @@ def importance_weights(importance: torch.Tensor) -> torch.Tensor:
     return torch.exp(i - i.amax(dim=(2, 3), keepdim=True).detach())
 
 
+def _weighted_window_means(x: torch.Tensor, weights: torch.Tensor, k: int):
+    """(window mean of w·x (N, C, H, W), window mean of w (N, 1, H, W)), pooled together."""
+    s = _window_mean(torch.cat([weights * x, weights], dim=1), k)
+    return s[:, :-1], s[:, -1:]
+
+
 def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch.Tensor:
     """Eq. 3–4 with source-pixel weights: boxsum_k(w·x) / boxsum_k(w).
 
     x: (N, C, H, W); weights: (N, 1, H, W) positive (see :func:`importance_weights`).
     Taps outside the image contribute nothing (zero padding of both sums).
     """
-    s = _window_mean(torch.cat([weights * x, weights], dim=1), k)
-    return s[:, :-1] / s[:, -1:]
+    num, den = _weighted_window_means(x, weights, k)
+    return num / den
 
 
 def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int) -> torch.Tensor:
@@ -202,9 +208,8 @@ def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor
     acc = None
     for i, k in enumerate(kernel_sizes):
         if kernel_path == "boxsum":
-            wi = weights[:, i:i + 1]
-            s = _window_mean(torch.cat([wi * x, wi], dim=1), k)
-            term = s[:, :-1] * (a[:, i:i + 1] / s[:, -1:])
+            num, den = _weighted_window_means(x, weights[:, i:i + 1], k)
+            term = num * (a[:, i:i + 1] / den)  # α_i·R_i with one 3-channel multiply
         else:
             term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
         acc = term if acc is None else acc + term
