@@ -74,6 +74,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-frame to_world matrices for --scene (as written to <seq>/scene/camera_path.json)")
     p.add_argument("--workers", type=_positive, default=1,
                    help="render this many sequences at once in separate processes (default 1)")
+    p.add_argument("--pixel-only", action="store_true",
+                   help="write pixel layers only, no per-sample layers (S samples still averaged into colour)")
     p.add_argument("--overwrite", action="store_true", help="re-render sequences that are already complete")
 
 
@@ -171,7 +173,8 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
         spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed)
         seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
     report = progress.put if hasattr(progress, "put") else progress
-    seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report)
+    seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
+                              pixel_only=getattr(a, "pixel_only", False))
     return {"folder": job["name"], "scene": seq.name, "scene_seed": seq.seed, "frames": seq.frames,
             "spp": a.spp, "ref_spp": a.ref_spp, "size": [w, h], "variant": variant,
             "defocus": seq.defocus, "motion_blur": seq.motion_blur, "source": seq.source,

@@ -405,9 +405,10 @@ class SequenceRenderer:
 
 def render_sequence(mi, seq: Sequence, folder: str, spp: int, ref_spp: int, variant: str,
                     progress: Callable[[int], None] | None = None,
-                    on_frame: Callable[[int], None] | None = None) -> float:
+                    on_frame: Callable[[int], None] | None = None, pixel_only: bool = False) -> float:
     """Render and write every frame of ``seq`` into ``folder``; returns the seconds it took.
-    ``progress(n)`` is called after every render call, ``on_frame(t)`` after every frame."""
+    ``progress(n)`` is called after every render call, ``on_frame(t)`` after every frame.
+    ``pixel_only`` drops the per-sample layers from the files (pixel models, small samples)."""
     os.makedirs(folder, exist_ok=True)
     start = _time.perf_counter()
     renderer = SequenceRenderer(mi, seq, spp, ref_spp, variant)
@@ -417,6 +418,8 @@ def render_sequence(mi, seq: Sequence, folder: str, spp: int, ref_spp: int, vari
                              seq.path.key_frames(seq.frames), seq.intrinsics)
     for t in range(seq.frames):
         frame = renderer.render_frame(t, progress)
+        if pixel_only:
+            frame.samples = None
         write_frame(os.path.join(folder, frame_name(t)), frame)
         if on_frame:
             on_frame(t)
