@@ -41,49 +41,63 @@ def add_arguments(p):
 
 
 def load_inputs(path: str, albedo: str | None = None, normal: str | None = None):
-    """List of (name, loader) for the input: loaders read lazily so long sequences stream."""
+    """Sequences in the input: a list of (sequence name, [(frame name, loader), ...]).
+
+    A folder of frames is one sequence; a folder of sequence folders (what ``mcdenoise
+    render`` writes) is several.  Loaders read lazily so long sequences stream."""
     if os.path.isdir(path):
         paths = frame_paths(path)
-        if not paths:
-            raise FrameError(f"{path}: no .exr frames in this folder")
-        return [(Path(p).stem, (lambda p=p: read_frame(p, samples=False))) for p in paths]
+        if paths:
+            return [("", [(Path(p).stem, (lambda p=p: read_frame(p, samples=False))) for p in paths])]
+        seqs = []
+        for sub in sorted(Path(path).iterdir()):
+            if sub.is_dir() and frame_paths(sub):
+                seqs.append((sub.name, [(Path(p).stem, (lambda p=p: read_frame(p, samples=False)))
+                                        for p in frame_paths(sub)]))
+        if not seqs:
+            raise FrameError(f"{path}: no .exr frames in this folder or its sub-folders")
+        return seqs
     if not os.path.exists(path):
         raise FrameError(f"{path}: no such file or folder")
     if albedo or normal or path.lower().endswith(".pfm"):
-        return [(Path(path).stem, lambda: read_plain(path, albedo, normal))]
+        return [("", [(Path(path).stem, lambda: read_plain(path, albedo, normal))])]
     try:
         read_frame(path, layers=["color"], samples=False)
-        return [(Path(path).stem, lambda: read_frame(path, samples=False))]
+        return [("", [(Path(path).stem, lambda: read_frame(path, samples=False))])]
     except FrameError:
-        return [(Path(path).stem, lambda: read_plain(path))]
+        return [("", [(Path(path).stem, lambda: read_plain(path))])]
 
 
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
         threads: int = 0, albedo=None, normal=None, log=print) -> dict:
     den = Denoiser.load(model, threads=threads, profile=profile)
-    items = load_inputs(input_path, albedo, normal)
-    out_dir = Path(output)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    seqs = load_inputs(input_path, albedo, normal)
     outs, refs = [], []
-    for name, load in items:
-        frame = load()
-        image = den(frame)
-        write_rgb(out_dir / f"{name}.exr", image, meta={"model": den.contract.spec_name, "source": frame.path})
-        if png:
-            write_png(out_dir / f"{name}.png", gamma(image))
-        if frame.reference is not None:
-            outs.append(image)
-            refs.append(frame.reference)
-    skip = 1 if len(items) > 1 else 0
+    n_frames = 0
+    for seq_name, items in seqs:
+        den.reset()
+        out_dir = Path(output) / seq_name
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for name, load in items:
+            frame = load()
+            image = den(frame)
+            n_frames += 1
+            write_rgb(out_dir / f"{name}.exr", image, meta={"model": den.contract.spec_name, "source": frame.path})
+            if png:
+                write_png(out_dir / f"{name}.png", gamma(image))
+            if frame.reference is not None:
+                outs.append(image)
+                refs.append(frame.reference)
+    skip = 1 if n_frames > 1 else 0
     log(den.stage_table(skip=skip))
-    result = {"model": den.contract.spec_name, "frames": len(items),
+    rows = den.stage_times()
+    result = {"model": den.contract.spec_name, "frames": n_frames, "sequences": len(seqs),
               "sanitized_frames": den.report.sanitized_frames, "resets": den.report.resets,
-              "stage_ms_median": timing.medians(den.stage_times()[skip:] or den.stage_times()),
-              "stage_ms_per_frame": den.stage_times()}
+              "stage_ms_median": timing.medians(rows[skip:] or rows), "stage_ms_per_frame": rows}
     if refs:
         result["psnr_db"] = psnr(np.stack(outs), np.stack(refs))
         log(f"PSNR vs reference over {len(refs)} frames: {result['psnr_db']:.2f} dB (ANF Eq. 14)")
-    log(f"wrote {len(items)} frame(s) to {out_dir}")
+    log(f"wrote {n_frames} frame(s) of {len(seqs)} sequence(s) to {output}")
     return result
 
 
