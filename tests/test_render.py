@@ -274,6 +274,26 @@ def test_generator_is_deterministic_and_matches_export(tiny_dataset):
     assert json.dumps(d.objects, sort_keys=True) == json.dumps(a.objects, sort_keys=True) and d.defocus
 
 
+@pytest.mark.parametrize("make", [procedural.blob_mesh, procedural.torus_mesh, procedural.twisted_mesh])
+def test_generated_meshes_are_closed_and_face_outward(make):
+    for seed in range(3):
+        m = make(np.random.default_rng(seed))
+        v, f, n = m["vertices"].astype(np.float64), m["faces"], m["normals"]
+        assert m["uv"].shape == (len(v), 2) and m["uv"].min() >= 0 and m["uv"].max() <= 1
+        _, weld = np.unique(np.round(v, 5), axis=0, return_inverse=True)
+        wf = weld.reshape(-1)[f]
+        wf = wf[(wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])]  # pole slivers
+        edges = np.concatenate([wf[:, [0, 1]], wf[:, [1, 2]], wf[:, [2, 0]]])
+        directed = {tuple(e) for e in edges}
+        assert len(directed) == len(edges), "an edge is used twice in the same direction"
+        assert all((b, a) in directed for a, b in directed), "mesh has a hole"
+        volume = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6
+        assert volume > 0
+        fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        big = np.linalg.norm(fn, axis=1) > 1e-9
+        assert np.all(np.einsum("ij,ij->i", fn[big], n[f[big, 0]]) > 0), "vertex normal against its face"
+
+
 def test_exported_scene_rerenders_the_frames(tiny_dataset, frames, mi):
     from training.render.renderer import to_mitsuba
 

@@ -117,8 +117,8 @@ def _mesh(v, f, uv) -> dict:
 
 
 def blob_mesh(rng: np.random.Generator, rows: int = 40, cols: int = 72) -> dict:
-    """A sphere of radius ~1 displaced by a sum of random smooth spherical waves (amplitude
-    0.05-0.3).  Returns dict of vertices (n,3), normals (n,3), uv (n,2) in [0,1], faces (m,3)."""
+    """A unit sphere displaced along its normal by 2-5 random plane waves (0.03-0.12 each).
+    Returns dict of vertices (n,3), normals (n,3), uv (n,2) in [0,1], faces (m,3) int32."""
     th = np.linspace(0, math.pi, rows)[:, None]
     ph = np.linspace(0, 2 * math.pi, cols + 1)[None, :]
     d = np.stack([np.sin(th) * np.cos(ph), np.cos(th) * np.ones_like(ph), np.sin(th) * np.sin(ph)], -1)
@@ -169,7 +169,8 @@ def twisted_mesh(rng: np.random.Generator, rings: int = 32, around: int = 64) ->
         verts += [centre, ring]
         uvs += [np.array([[0.5, 0.5]]), 0.5 + 0.5 * np.stack([np.cos(a[0]), np.sin(a[0])], -1)]
         k = np.arange(around)
-        faces.append(np.stack([np.full(around, base), base + 1 + k, base + 2 + k], -1))
+        fan = np.stack([np.full(around, base), base + 1 + k, base + 2 + k], -1)  # faces -y
+        faces.append(fan if ring_idx == 0 else fan[:, ::-1])
         base += 1 + around + 1
     v = np.concatenate(verts)
     f = np.concatenate(faces).astype(np.int32)
@@ -179,7 +180,7 @@ def twisted_mesh(rng: np.random.Generator, rings: int = 32, around: int = 64) ->
     n = np.zeros_like(v)
     for k in range(3):
         np.add.at(n, f[:, k], fn)
-    n_side = vertex_normals(side, faces[0])  # welds the u seam of the side only
+    n_side = vertex_normals(side, f[: len(faces[0])])  # oriented side faces; welds the u seam
     n[: len(side)] = n_side
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return {"vertices": v.astype(np.float32), "normals": n.astype(np.float32),
