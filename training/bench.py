@@ -191,7 +191,9 @@ def write_tables(rows, out, device, threads, frames, warmup) -> None:
             wr.writerow({k: r.get(k) for k in keys})
     lines = [f"# Per-stage timing (median ms per frame)", "",
              f"Machine: {device}, {threads} threads. Median of {frames} frames after {warmup} warm-up "
-             f"frames, all numbers from one run of `mcdenoise bench`. Paper numbers are the paper's GPU.",
+             f"frames, all numbers from one run of `{' '.join(['mcdenoise'] + sys.argv[1:]) if sys.argv[0].endswith('mcdenoise') else 'mcdenoise bench'}`. "
+             "Paper numbers are the paper's GPU (RTX 2080 Ti at 1280x720); graph stages are "
+             "onnxruntime profiler kernel sums, 'graph (wall)' is the run() call.",
              "", "| model | size | stage | onnxruntime | torch eager | paper (GPU) | OIDN |",
              "|---|---|---|---:|---:|---:|---:|"]
     for r in rows:
