@@ -248,7 +248,7 @@ class Denoiser:
                 r.update(g)
         return rows
 
-    def stage_table(self, skip: int = 1, device: str = "CPU") -> str:
+    def stage_table(self, skip: int = 1, device: str | None = None) -> str:
         """Paper-style table of median per-stage ms (first ``skip`` frames are warm-up)."""
         rows = self.stage_times()
         use = rows[skip:] if len(rows) > skip else rows
@@ -256,4 +256,7 @@ class Denoiser:
         h, w = self._size or (0, 0)
         order = list(timing.DRIVER_STAGES_BEFORE) + self.graph_stages + list(timing.DRIVER_STAGES_AFTER)
         title = f"{self.contract.spec_name}: per-stage time"
+        if device is None:
+            provider = self.session.get_providers()[0]
+            device = timing.cpu_name() if provider == "CPUExecutionProvider" else provider
         return timing.format_table(med, order, self.contract.paper, f"{w}x{h}", title, len(use), device)

@@ -25,6 +25,21 @@ DRIVER_STAGES_AFTER = (POSTPROCESS, STATE_UPDATE)
 TOTAL, GRAPH = "total", "graph (wall)"
 
 
+def cpu_name() -> str:
+    """The CPU's model name and core count (for timing tables), or a generic label."""
+    import os
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return f"{line.split(':', 1)[1].strip()} ({os.cpu_count()} cores)"
+    except OSError:
+        pass
+    return platform.processor() or "CPU"
+
+
 class FrameTimer:
     """Collects stage durations (ms) of one frame."""
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import csv
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -30,16 +29,6 @@ from runtime import timing
 from runtime.args import add_threads, parse_size
 
 DEFAULT_SIZES = ("256x256", "1280x720")
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return f"{line.split(':', 1)[1].strip()} ({os.cpu_count()} cores)"
-    except OSError:
-        pass
-    return platform.processor() or "CPU"
 
 
 def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
@@ -141,7 +130,7 @@ def run(models, sizes, frames=5, warmup=2, threads=0, torch_too=True, oidn=True,
     from training.specs import build_model, parse_spec
 
     rows = []
-    device = cpu_name()
+    device = timing.cpu_name()
     threads_used = threads or os.cpu_count()
     if torch_too:
         import torch
