@@ -15,6 +15,11 @@ def _frame(h=6, w=7, spp=2, seed=0):
                    meta={"scene_seed": 7, "frame": 3})
 
 
+def _write_raw(path, channels):
+    """An EXR with exactly ``channels`` (name -> 2-D array), bypassing write_frame's checks."""
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, channels).write(str(path))
+
+
 def test_round_trip_is_exact(tmp_path):
     fr = _frame()
     F.write_frame(tmp_path / "f.exr", fr)
@@ -61,8 +66,7 @@ def test_partially_missing_layer_names_the_channel(tmp_path):
     h, w = 4, 5
     ch = {f"color.{c}": np.ones((h, w), np.float32) for c in "RGB"}
     ch["normal.X"] = np.ones((h, w), np.float32)
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
-        str(tmp_path / "p.exr"))
+    _write_raw(tmp_path / "p.exr", ch)
     with pytest.raises(F.FrameError, match=r"p\.exr: missing channel 'normal\.Y'"):
         F.read_frame(tmp_path / "p.exr")
 
@@ -82,8 +86,7 @@ def test_wrong_dtype_names_channel(tmp_path):
     h, w = 4, 5
     ch = {f"color.{c}": np.ones((h, w), np.float32) for c in "RG"}
     ch["color.B"] = np.ones((h, w), np.uint32)
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
-        str(tmp_path / "u.exr"))
+    _write_raw(tmp_path / "u.exr", ch)
     with pytest.raises(F.FrameError, match=r"u\.exr: channel 'color\.B' has dtype uint32"):
         F.read_frame(tmp_path / "u.exr")
 
@@ -91,8 +94,7 @@ def test_wrong_dtype_names_channel(tmp_path):
 def test_half_channels_are_accepted_as_float32(tmp_path):
     h, w = 4, 5
     ch = {c: np.full((h, w), 0.5, np.float16) for c in "RGB"}
-    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(
-        str(tmp_path / "h.exr"))
+    _write_raw(tmp_path / "h.exr", ch)
     img = F.read_rgb(tmp_path / "h.exr")
     assert img.dtype == np.float32 and img.shape == (h, w, 3) and np.all(img == 0.5)
 
