@@ -102,6 +102,21 @@ def test_unloadable_scene_file_is_a_clear_error(tmp_path, capsys, mi):
     assert rc == 2 and "bad.xml: Mitsuba cannot load this scene" in err
 
 
+def test_render_failure_is_one_line_naming_the_scene(tmp_path, capsys, monkeypatch, mi):
+    from training.render import renderer
+
+    def fail(self, shape, position):
+        raise RuntimeError("first line\nshape_index 7 hits lie outside shape 'x'")
+
+    monkeypatch.setattr(renderer.SequenceRenderer, "check_shape_ids", fail)
+    rc = cli_main(["render", "--out", str(tmp_path / "o"), "--scenes", "1", "--frames", "1", "--size", "16x16",
+                   "--spp", "1", "--ref-spp", "1", "--seed", "3", "--variant", render_variant()])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == ("mcdenoise render: error: scene_0300000: frame 0: "
+                                            "shape_index 7 hits lie outside shape 'x'")
+
+
 def test_variant_choice(monkeypatch):
     assert llvm_major("/usr/lib/x86_64-linux-gnu/libLLVM-19.so") == 19
     assert llvm_major("/usr/lib/x86_64-linux-gnu/libLLVM.so.18.1") == 18
@@ -400,6 +415,43 @@ def test_each_sample_radiance_matches_its_own_features(mi):
     np.testing.assert_array_equal(s[..., G["time"]][:, 0, 0, 0], times.astype(np.float32))
     assert np.all(s[..., G["coc"]][hit] > 0) and f.meta["camera"]["type"] == "thinlens"
     assert f.valid.mean() > 0.2 and np.abs(f.motion).max() > 0.5
+
+
+def test_shape_ids_hold_for_meshes_mitsuba_merged(mi):
+    """Scene seed 100044 (--seed 1, scene 44) crashed the id check: Mitsuba 3.9's loader merges
+    meshes with an equivalent BSDF (there a rectangle and a twisted prism, both plain tungsten)
+    into one mesh with an empty id whose bbox() covers only one of its parts.  The same here:
+    a conductor panel and cube far apart, beside a diffuse floor."""
+    from training.render.renderer import Sequence, SequenceRenderer, shape_bounds
+
+    metal = {"type": "twosided", "bsdf": {"type": "conductor", "material": "W"}}
+    tf = lambda m: mi.ScalarTransform4f(np.asarray(m, np.float64).tolist())
+    scene = mi.load_dict({
+        "type": "scene",
+        "panel": {"type": "rectangle", "bsdf": metal,
+                  "to_world": tf(cam.look_at((-1.5, 0.5, 0.0), (-1.5, 0.5, 1.0)) @ np.diag([0.5, 0.5, 1, 1]))},
+        "box": {"type": "cube", "bsdf": metal, "to_world": tf(cam.translation((1.5, 0.5, 0.0)) @ np.diag([0.4] * 3 + [1]))},
+        "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"},
+                  "to_world": tf(cam.look_at((0, 0, 0), (0, 1, 0), up=(0, 0, 1)) @ np.diag([4.0, 4.0, 1, 1]))},
+        "light": {"type": "constant"},
+    })
+    intr = cam.Intrinsics(48, 32, 60.0)
+    seq = Sequence(name="merged", seed=5, scene=scene, intrinsics=intr, path=cam.KeyFrames([cam.look_at((0, 1.0, 5.0), (0, 0.4, 0))]),
+                   frames=1, defocus=False, motion_blur=False, source="test")
+    renderer = SequenceRenderer(mi, seq, spp=1, ref_spp=1, variant=mi.variant())
+    for shape, sid in zip(scene.shapes(), renderer.ids):  # bounds hold every vertex
+        if shape.is_mesh():
+            v = np.asarray(shape.vertex_positions_buffer()).reshape(-1, 3)
+            lo, hi = shape_bounds(shape)
+            assert np.all(v >= lo) and np.all(v <= hi), shape.id()
+    p = renderer.render_pass(seq.path.to_world(0.0), seed=1)
+    renderer.check_shape_ids(p["shape"], p["position"])  # raised RuntimeError before the fix
+    f = renderer.render_frame(0)  # the check runs inside
+    metallic = f.samples[0, ..., G["metallic"]][..., 0] == 1
+    x = f.samples[0, ..., G["position"]][..., 0]
+    assert (metallic & (x < -1.0)).sum() > 10 and (metallic & (x > 1.0)).sum() > 10  # both metal parts
+    if len(scene.shapes()) < 3:  # merged (Mitsuba 3.9): both metal parts are one shape with an empty id
+        assert [s.id() for s in scene.shapes()].count("") == 1
 
 
 def test_coc_matches_the_rendered_blur_disc(mi):

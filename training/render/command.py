@@ -159,22 +159,27 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     """Render one sequence; returns its manifest entry.  ``progress``: a callable taking the
     number of finished render calls, or a queue to put them on (worker processes)."""
     from training.render import procedural
-    from training.render.renderer import load_procedural, render_sequence, user_scene
+    from training.render.renderer import RenderError, load_procedural, one_line, render_sequence, user_scene
     from training.render.variant import init_mitsuba
 
     mi = init_mitsuba(variant)
     a = argparse.Namespace(**args_dict)
     w, h = a.size
     folder = os.path.join(a.out, job["name"])
-    if a.scene:
-        seq = user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
-                         job["motion_blur"])
-    else:
-        spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed)
-        seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
-    report = progress.put if hasattr(progress, "put") else progress
-    seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
-                              pixel_only=getattr(a, "pixel_only", False))
+    try:
+        if a.scene:
+            seq = user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
+                             job["motion_blur"])
+        else:
+            spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed)
+            seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
+        report = progress.put if hasattr(progress, "put") else progress
+        seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
+                                  pixel_only=getattr(a, "pixel_only", False))
+    except RenderError:
+        raise
+    except Exception as e:  # one line naming the sequence, not a traceback (also from worker processes)
+        raise RenderError(f"{job['name']} (scene seed {job['seed']}): {one_line(e)}") from e
     return {"folder": job["name"], "scene": seq.name, "scene_seed": seq.seed, "frames": seq.frames,
             "spp": a.spp, "ref_spp": a.ref_spp, "size": [w, h], "variant": variant,
             "defocus": seq.defocus, "motion_blur": seq.motion_blur, "source": seq.source,

@@ -50,9 +50,35 @@ REF_TIME_STRATA = 16
 #: relative; this is loose enough for them and tight enough for contact shadows).
 VIS_REL = 1e-3
 VIS_ABS = 1e-4
-#: Where a sequence keeps its scene export (a subfolder: frame_paths() lists every *.exr
-#: directly in the sequence folder, and the scene's textures are EXR files).
+#: Where a sequence keeps its scene export (a subfolder, so the scene's EXR textures never sit
+#: beside the frames).
 SCENE_DIR = "scene"
+
+
+class RenderError(ValueError):
+    """Rendering a sequence failed; the message names the sequence (and frame) and is one line,
+    so ``mcdenoise render`` reports it without a traceback."""
+
+
+def one_line(e: BaseException) -> str:
+    """An exception as one line: Mitsuba's messages span several lines and end with the cause."""
+    lines = [ln.strip() for ln in str(e).strip().splitlines() if ln.strip()]
+    return lines[-1] if lines else type(e).__name__
+
+
+def shape_bounds(shape) -> tuple[np.ndarray, np.ndarray]:
+    """World-space (min, max) (3,) float64 of a shape's geometry.
+
+    Meshes are bounded by their vertices rather than ``shape.bbox()``: Mitsuba 3.9's scene
+    loader (``optimize=True``, the default of ``load_dict``/``load_file``) merges meshes that
+    share an equivalent BSDF into one mesh with an empty id, and that merged mesh's ``bbox()``
+    is the bounding box of only one of its parts.
+    """
+    if shape.is_mesh() and shape.vertex_count() > 0:
+        v = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+        return v.min(axis=0), v.max(axis=0)
+    b = shape.bbox()
+    return np.asarray(b.min, np.float64).reshape(-1), np.asarray(b.max, np.float64).reshape(-1)
 
 
 @dataclass
@@ -234,9 +260,7 @@ class SequenceRenderer:
         self.path_integrator = mi.load_dict({"type": "path", "max_depth": int(seq.max_depth)})
         self.aov_integrator = mi.load_dict({"type": "aov", "aovs": AOVS})
         self.lut, self.ids, self.names = materials.material_table(mi, seq.scene)
-        self._bboxes = {int(i): (np.asarray(s.bbox().min, np.float64).reshape(-1),
-                                 np.asarray(s.bbox().max, np.float64).reshape(-1))
-                        for i, s in zip(self.ids, seq.scene.shapes())}
+        self._bboxes = {int(i): shape_bounds(s) for i, s in zip(self.ids, seq.scene.shapes())}
 
     def set_pose(self, to_world: np.ndarray) -> None:
         """Move the sensor (no kernel recompilation: the transform is a parameter)."""
@@ -278,7 +302,8 @@ class SequenceRenderer:
             pts = position[shape == sid]
             tol = 1e-3 * (1.0 + np.abs(np.concatenate([lo, hi])).max())
             if np.any(pts < lo - tol) or np.any(pts > hi + tol):
-                raise RuntimeError(f"shape_index {sid} hits lie outside shape {self.names[list(self.ids).index(sid)]!r}: "
+                name = self.names[list(self.ids).index(sid)] or "(a merged mesh)"
+                raise RuntimeError(f"shape_index {sid} hits lie outside shape {name!r}: "
                                    f"the shape id mapping of this Mitsuba variant differs from the expected one")
 
     def visible_from(self, origin: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -417,7 +442,10 @@ def render_sequence(mi, seq: Sequence, folder: str, spp: int, ref_spp: int, vari
         cam.save_camera_path(os.path.join(folder, SCENE_DIR, "camera_path.json"),
                              seq.path.key_frames(seq.frames), seq.intrinsics)
     for t in range(seq.frames):
-        frame = renderer.render_frame(t, progress)
+        try:
+            frame = renderer.render_frame(t, progress)
+        except Exception as e:  # Mitsuba and the checks raise RuntimeError; name where it happened
+            raise RenderError(f"{seq.name}: frame {t}: {one_line(e)}") from e
         if pixel_only:
             frame.samples = None
         write_frame(os.path.join(folder, frame_name(t)), frame)
