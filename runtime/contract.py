@@ -10,7 +10,7 @@ The model interface the contract describes (every method follows it, see
 
 * inputs, all ``float32`` ``NCHW`` with dynamic N, H, W: first the frame's pixel layers by name
   (``color`` linear HDR radiance, ``albedo``, ``normal`` world-space unit vectors, ``depth``
-  ray distance, as in :data:`runtime.frames.PIXEL_LAYERS`), then per temporal state entry
+  distance from the camera centre, as in :data:`runtime.frames.PIXEL_LAYERS`), then per temporal state entry
   ``prev_<name>`` (the previous frame's ``next_<name>`` reprojected to this frame), then
   :data:`HISTORY` (N, 1, H, W) in [0, 1], the reprojection-validity mask (only when the model
   has state);

@@ -55,7 +55,7 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None)
                 seqs.append((sub.name, [(Path(p).stem, (lambda p=p: read_frame(p, samples=False)))
                                         for p in frame_paths(sub)]))
         if not seqs:
-            raise FrameError(f"{path}: no .exr frames in this folder or its sub-folders")
+            raise FrameError(f"{path}: no frame_*.exr frames in this folder or its sub-folders")
         return seqs
     if not os.path.exists(path):
         raise FrameError(f"{path}: no such file or folder")

@@ -45,7 +45,8 @@ PIXEL_LAYERS: tuple[Layer, ...] = (
           "[0, 1]; >1 possible on roughconductor; 0 on delta BSDFs", "-", "0"),
     Layer("normal", ("X", "Y", "Z"), "mean first-hit shading normal, renormalised",
           "unit vector", "world", "0"),
-    Layer("depth", ("Z",), "mean distance from the camera along the primary ray",
+    Layer("depth", ("Z",), "mean distance from the camera (lens) centre to the first hit (the ray "
+          "distance for a pinhole; differs from it by at most the aperture radius for a thin lens)",
           "scene units", "-", "0"),
     Layer("position", ("X", "Y", "Z"), "mean first-hit position", "scene units", "world", "0"),
     Layer("motion", ("X", "Y"),
@@ -70,7 +71,8 @@ SAMPLE_FEATURES_DOC: tuple[tuple[str, str, str, str, str], ...] = (
     ("normal.X", "first-hit shading normal", "unit", "world", "0"),
     ("normal.Y", "", "", "", ""),
     ("normal.Z", "", "", "", ""),
-    ("depth", "distance along the primary ray", "scene units", "-", "0"),
+    ("depth", "distance from the camera (lens) centre to the first hit (the ray distance for a "
+     "pinhole; differs from it by at most the aperture radius for a thin lens)", "scene units", "-", "0"),
     ("position.X", "first-hit position", "scene units", "world", "0"),
     ("position.Y", "", "", "", ""),
     ("position.Z", "", "", "", ""),
@@ -82,8 +84,9 @@ SAMPLE_FEATURES_DOC: tuple[tuple[str, str, str, str, str], ...] = (
     ("specular", "1 if the first-hit material is specular-dominated "
      "(conductor, roughconductor, dielectric); splits radiance into ANF's diffuse/specular",
      "{0, 1}", "-", "0"),
-    ("specular_color.R", "first-hit specular reflectance (specular_reflectance or 0.04 for "
-     "plastic coatings)", "[0, 1]", "-", "0"),
+    ("specular_color.R", "first-hit reflectance at normal incidence: conductors from their optical "
+     "constants times specular_reflectance; plastic and dielectric from the IOR (0.04 at 1.5)",
+     "[0, 1]", "-", "0"),
     ("specular_color.G", "", "", "", ""),
     ("specular_color.B", "", "", "", ""),
     ("motion.X", "offset to this sample's hit point projected into frame t-1",
@@ -482,9 +485,11 @@ def frame_name(t: int) -> str:
 
 
 def frame_paths(directory: str | os.PathLike) -> list[str]:
-    """Sorted frame files (``*.exr``) directly in ``directory``."""
+    """Sorted frame files (``frame_*.exr``, as :func:`frame_name` writes them) directly in
+    ``directory``; other EXR files there (textures, outputs) are not frames."""
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
         raise FrameError(f"{directory}: not a directory")
-    return sorted(os.path.join(directory, n) for n in os.listdir(directory) if n.endswith(".exr"))
+    return sorted(os.path.join(directory, n) for n in os.listdir(directory)
+                  if n.startswith("frame_") and n.endswith(".exr"))
 

@@ -47,6 +47,13 @@ def test_pixel_means_from_samples():
     np.testing.assert_allclose(np.linalg.norm(px["normal"], axis=-1), 1.0, rtol=1e-5)
 
 
+def test_frame_paths_lists_only_frame_files(tmp_path):
+    for name in (F.frame_name(1), F.frame_name(0), "tex0.exr", "sky.exr", "frame_0000.png"):
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "scene").mkdir()
+    assert F.frame_paths(tmp_path) == [str(tmp_path / F.frame_name(t)) for t in (0, 1)]
+
+
 def test_missing_file_names_it(tmp_path):
     with pytest.raises(F.FrameError, match="nope.exr: no such file"):
         F.read_frame(tmp_path / "nope.exr")

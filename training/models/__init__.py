@@ -17,7 +17,7 @@ A model is a ``torch.nn.Module`` with
       ``color`` (N, 3, H, W) linear HDR radiance, already sanitised (finite, >= 0);
       ``albedo`` (N, 3, H, W), >= 0 (0 on misses and delta BSDFs, may exceed 1);
       ``normal`` (N, 3, H, W) world-space unit normals in [-1, 1] (0 on a miss);
-      ``depth`` (N, 1, H, W) distance along the primary ray in scene units (0 on a miss);
+      ``depth`` (N, 1, H, W) distance from the camera centre in scene units (0 on a miss);
     * per ``[[state]]`` entry ``prev_<name>`` (N, C, H, W): the previous frame's
       ``next_<name>`` output, reprojected to this frame by the driver (finite; zeros where
       there is no history);
