@@ -70,3 +70,25 @@ def test_torch_matches_numpy_and_is_differentiable():
     np.testing.assert_array_equal(ht.numpy(), hn)
     wt.sum().backward()
     assert ts.grad is not None and float(ts.grad.abs().sum()) > 0
+
+
+def test_numpy_bands_match_torch_whole_frame():
+    """numpy processes rows in bands (runtime.temporal.BAND_ROWS); band seams must not show."""
+    from runtime import temporal
+
+    h, w = 2 * temporal.BAND_ROWS + 7, 9
+    rng = np.random.default_rng(3)
+    motion = (rng.random((1, 2, h, w), dtype=np.float32) - 0.5) * 6
+    depth = np.full((1, 1, h, w), 10.0, np.float32)
+    nrm = np.zeros((1, 3, h, w), np.float32)
+    nrm[:, 2] = -1
+    pos = rng.random((1, 3, h, w), dtype=np.float32) * 0.1
+    cur = {"depth": depth, "position": pos, "normal": nrm}
+    prev = {"depth": depth.copy(), "position": pos + 0.05, "normal": nrm.copy()}
+    state = rng.random((1, 4, h, w), dtype=np.float32)
+    (wn,), hn = reproject([state], motion, cur, prev)
+    (wt,), ht = reproject([torch.tensor(state)], torch.tensor(motion), {k: torch.tensor(v) for k, v in cur.items()},
+                          {k: torch.tensor(v) for k, v in prev.items()})
+    assert 0.2 < hn.mean() < 1.0
+    np.testing.assert_array_equal(ht.numpy(), hn)
+    np.testing.assert_allclose(wt.numpy(), wn, rtol=1e-5, atol=1e-6)
