@@ -109,6 +109,21 @@ del _i, _n, _g, _s
 _LAYER_BY_NAME = {layer.name: layer for layer in PIXEL_LAYERS}
 
 
+def _split_radiance(samples: np.ndarray, specular: bool) -> np.ndarray:
+    rad = samples[..., SAMPLE_GROUPS["radiance"]]
+    flag = samples[..., SAMPLE_GROUPS["specular"]]
+    return rad * flag if specular else rad * (1.0 - flag)
+
+
+#: Per-sample groups computed from stored ones.  ANF (§4.1) splits radiance into diffuse and
+#: specular by the first-hit material: a sample whose first hit is specular-dominated (the
+#: ``specular`` flag) counts as specular, any other as diffuse; the two sum to ``radiance``.
+DERIVED_SAMPLE_GROUPS = {
+    "diffuse_radiance": lambda s: _split_radiance(s, specular=False),
+    "specular_radiance": lambda s: _split_radiance(s, specular=True),
+}
+
+
 class FrameError(ValueError):
     """A frame file or array is missing, unreadable, or lacks / mis-shapes a channel."""
 
@@ -155,11 +170,15 @@ class Frame:
         return arr
 
     def sample_feature(self, group: str) -> np.ndarray:
-        """Per-sample feature group (e.g. "radiance", "depth") as (S, H, W, C)."""
+        """Per-sample feature group (e.g. "radiance", "depth") as (S, H, W, C), or a derived
+        group of :data:`DERIVED_SAMPLE_GROUPS` (ANF's diffuse/specular radiance split)."""
         if self.samples is None:
             raise FrameError(f"{self.path or 'frame'}: has no per-sample layers (sample<i>.*)")
+        if group in DERIVED_SAMPLE_GROUPS:
+            return DERIVED_SAMPLE_GROUPS[group](self.samples)
         if group not in SAMPLE_GROUPS:
-            raise FrameError(f"unknown sample feature {group!r}; known: {list(SAMPLE_GROUPS)}")
+            raise FrameError(f"unknown sample feature {group!r}; known: "
+                             f"{list(SAMPLE_GROUPS) + list(DERIVED_SAMPLE_GROUPS)}")
         return self.samples[..., SAMPLE_GROUPS[group]]
 
     def validate(self) -> None:

@@ -40,6 +40,17 @@ def test_sample_groups_cover_every_feature_once():
     np.testing.assert_array_equal(fr.sample_feature("motion"), fr.samples[..., 21:23])
 
 
+def test_diffuse_specular_split_sums_to_radiance():
+    fr = _frame(spp=2)
+    fr.samples[..., F.SAMPLE_GROUPS["specular"]] = (fr.samples[..., F.SAMPLE_GROUPS["specular"]] > 0.5)
+    d, s = fr.sample_feature("diffuse_radiance"), fr.sample_feature("specular_radiance")
+    np.testing.assert_allclose(d + s, fr.sample_feature("radiance"), rtol=1e-6)
+    spec = fr.samples[..., 17] > 0.5
+    assert np.all(d[spec] == 0) and np.all(s[~spec] == 0)
+    with pytest.raises(F.FrameError, match="unknown sample feature 'glossy'"):
+        fr.sample_feature("glossy")
+
+
 def test_pixel_means_from_samples():
     fr = _frame(spp=3)
     px = F.pixel_means(fr.samples)
