@@ -9,7 +9,8 @@ The model interface the contract describes (every method follows it, see
 ``training/models/__init__.py``):
 
 * inputs, all ``float32`` ``NCHW`` with dynamic N, H, W: first the frame's pixel layers by name
-  (``color`` linear HDR radiance, ``albedo``, ``normal`` world-space unit vectors, ``depth``
+  (``color`` linear HDR radiance, ``albedo``, ``normal`` screen-aligned camera-space unit vectors
+  (x right, y down, z forward; see runtime/inputs.py), ``depth``
   distance from the camera centre, as in :data:`runtime.frames.PIXEL_LAYERS`), then per temporal state entry
   ``prev_<name>`` (the previous frame's ``next_<name>`` reprojected to this frame), then
   :data:`HISTORY` (N, 1, H, W) in [0, 1], the reprojection-validity mask (only when the model

@@ -16,7 +16,8 @@ A model is a ``torch.nn.Module`` with
     * the spec's pixel layers, by :data:`runtime.frames.PIXEL_LAYERS` name:
       ``color`` (N, 3, H, W) linear HDR radiance, already sanitised (finite, >= 0);
       ``albedo`` (N, 3, H, W), >= 0 (0 on misses and delta BSDFs, may exceed 1);
-      ``normal`` (N, 3, H, W) world-space unit normals in [-1, 1] (0 on a miss);
+      ``normal`` (N, 3, H, W) unit normals in [-1, 1] in the camera's screen-aligned frame
+      (x right, y down, z forward; :func:`runtime.inputs.screen_normals`), 0 on a miss;
       ``depth`` (N, 1, H, W) distance from the camera centre in scene units (0 on a miss);
     * per ``[[state]]`` entry ``prev_<name>`` (N, C, H, W): the previous frame's
       ``next_<name>`` output, reprojected to this frame by the driver (finite; zeros where
