@@ -51,8 +51,7 @@ def _grid(motion, y_offset: int = 0):
         ys, xs = np.meshgrid(np.arange(y_offset, y_offset + h, dtype=np.float32),
                              np.arange(w, dtype=np.float32), indexing="ij")
     else:
-        import torch
-
+        torch = _torch()
         ys, xs = torch.meshgrid(torch.arange(y_offset, y_offset + h, dtype=motion.dtype, device=motion.device),
                                 torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
     return xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]

@@ -33,7 +33,6 @@ def tiny_args() -> argparse.Namespace:
 
 @pytest.fixture(scope="module")
 def mi():
-    pytest.importorskip("mitsuba")
     from training.render.variant import init_mitsuba
 
     return init_mitsuba(choose_variant(render_variant())[0])
