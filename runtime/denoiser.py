@@ -46,6 +46,7 @@ class Report:
 
     frames: int = 0
     sanitized_frames: int = 0
+    negative_output_values: int = 0
     resets: list = field(default_factory=list)
     messages: list = field(default_factory=list)
 
@@ -182,6 +183,14 @@ class Denoiser:
                 self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
                           "values; replaced by the input and state reset", once_key=None)
                 named = None
+            neg = image < 0
+            if neg.any():
+                # Radiance cannot be negative; multi-resolution blends (WSKPN Eq. 7) are not
+                # convex and can undershoot at edges, so clamp and count it.
+                self._say(f"frame {self.report.frames}: model output had negative values; clamped to 0 "
+                          "(counted in the report)", once_key="negative-output")
+                self.report.negative_output_values += int(neg.sum())
+                image = np.maximum(image, 0.0)
             image = np.ascontiguousarray(image, dtype=np.float32)
         with tm.stage(timing.STATE_UPDATE):
             if named is None:

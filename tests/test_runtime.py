@@ -183,3 +183,29 @@ def test_denoise_command_on_a_sequence(model_file, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == [f"frame_{t:04d}.{e}" for t in range(3) for e in ("exr", "png")]
     assert main(["denoise", "--model", str(tmp_path / "nope.onnx"), "--input", str(seq),
                  "--output", str(out)]) == 2
+
+
+def test_negative_model_output_is_clamped_and_counted(tmp_path):
+    """A contract-carrying graph that returns -color: the driver must not hand out negative
+    radiance, and says so."""
+    from onnx import TensorProto, helper
+
+    from runtime.contract import Contract, contract_metadata
+
+    io = {"layout": "NCHW", "transfer": "linear", "channels": 3}
+    contract = Contract(version=1, spec_name="neg", model_type="test", spec_toml="", spec_hash="",
+                        code_hash="", inputs=(dict(io, name="color", layer="color"),),
+                        outputs=(dict(io, name="output"),),
+                        stages=({"name": "prediction", "node_prefix": "/prediction/"},), state=(), history="")
+    shape = ["n", 3, "h", "w"]
+    g = helper.make_graph([helper.make_node("Neg", ["color"], ["output"], name="/prediction/Neg")], "neg",
+                          [helper.make_tensor_value_info("color", TensorProto.FLOAT, shape)],
+                          [helper.make_tensor_value_info("output", TensorProto.FLOAT, shape)])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+    helper.set_model_props(m, contract_metadata(contract))
+    onnx.save(m, tmp_path / "neg.onnx")
+    msgs = []
+    den = Denoiser.load(tmp_path / "neg.onnx", log=msgs.append)
+    out = den(np.full((4, 5, 3), 2.0, np.float32))
+    assert np.all(out == 0) and den.report.negative_output_values == 60
+    assert any("negative" in m for m in msgs)

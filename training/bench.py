@@ -153,7 +153,7 @@ def run(models, sizes, frames=5, warmup=2, threads=0, torch_too=True, oidn=True,
             for s in order:
                 rows.append({"model": c.spec_name, "size": f"{w}x{h}", "stage": s,
                              "onnxruntime_ms": ort_med.get(s), "torch_ms": torch_med.get(s),
-                             "paper_ms": (c.paper or {}).get(s.replace(" (wall)", "").replace(" ", "_") + "_ms")})
+                             "paper_ms": (c.paper or {}).get(timing.paper_key(s)) if timing.paper_key(s) else None})
             log(f"{c.spec_name} {w}x{h}: onnxruntime {ort_med[timing.TOTAL]:.1f} ms/frame"
                 + (f", torch graph {torch_med[timing.GRAPH]:.1f} ms" if torch_med else ""))
         for q, ms in oidn_ms.items():
