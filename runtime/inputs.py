@@ -101,10 +101,3 @@ def frame_inputs(frame: Frame, layers, report: SanitizeReport | None = None) -> 
             arr = screen_normals(arr, frame.meta)
         out[name] = np.ascontiguousarray(arr.transpose(2, 0, 1)[None])
     return out
-
-
-def check_size(frame: Frame, expected: tuple[int, int] | None) -> None:
-    """Raise FrameError when a frame's layers disagree in size with each other."""
-    frame.validate()
-    if expected is not None and frame.size != tuple(expected):
-        raise FrameError(f"{frame.path or 'frame'}: size {frame.size} differs from {expected}")

@@ -17,7 +17,6 @@ Item tensors, float32, leading time axis T:
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from dataclasses import dataclass
 from typing import Sequence
@@ -223,12 +222,3 @@ def collate(items: list[dict]):
     import torch
 
     return {k: torch.from_numpy(np.stack([it[k] for it in items])) for k in items[0]}
-
-
-def load_manifest(root: str | os.PathLike) -> dict:
-    """The renderer's manifest.json (settings, scene seeds), or {} if absent."""
-    p = os.path.join(os.fspath(root), MANIFEST)
-    if not os.path.exists(p):
-        return {}
-    with open(p) as fh:
-        return json.load(fh)
