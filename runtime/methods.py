@@ -1,0 +1,124 @@
+"""Every denoising method the measuring commands compare, behind one interface.
+
+A *method* is an object with
+
+``name: str``
+    the label in tables and charts (an ONNX model's spec name, ``oidn-high``, ``svgf``...);
+``__call__(frame) -> (H, W, 3) float32``
+    denoise one frame of the current sequence (a :class:`runtime.frames.Frame` or a dict of
+    (H, W, C) layers), linear HDR radiance;
+``reset()``
+    forget temporal state (start of an unrelated sequence).
+
+:func:`load_method` builds one from a name: a path to an mcdenoise ``.onnx`` file (the
+runtime driver, :class:`runtime.denoiser.Denoiser`), ``noisy`` (the input itself),
+``oidn-high`` / ``oidn-fast`` (Intel Open Image Denoise via ``pyoidn`` with albedo and normal,
+HDR), or ``svgf`` (the classical non-neural temporal filter, :mod:`runtime.svgf`).
+``evaluate``, ``bench`` and ``stress`` all go through here, so a method is run the same way
+everywhere.  Only the runtime stack is needed (no torch); ``pyoidn`` only for OIDN.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from runtime.frames import Frame, FrameError
+
+#: Built-in method names (besides ONNX file paths).
+BUILTIN = ("noisy", "oidn-high", "oidn-fast", "svgf")
+
+
+def _frame(frame) -> Frame:
+    from runtime.denoiser import _as_frame
+
+    return _as_frame(frame)
+
+
+class Noisy:
+    """The noisy input itself (the lower bound every denoiser must beat)."""
+
+    name = "noisy"
+
+    def __call__(self, frame) -> np.ndarray:
+        return np.asarray(_frame(frame).color, dtype=np.float32)
+
+    def reset(self) -> None:
+        pass
+
+
+class OIDN:
+    """Intel Open Image Denoise (``pyoidn``): colour + albedo + normal, HDR, one frame at a time.
+
+    OIDN has no temporal state and no input sanitising of its own: what it does with NaN or
+    huge input is what users get, so the measuring commands feed it the frame as is.
+    """
+
+    def __init__(self, quality: str = "high"):
+        try:
+            import pyoidn
+        except ImportError as e:
+            raise FrameError("Open Image Denoise needs the 'pyoidn' package: pip install pyoidn "
+                             "(or the project's [bench] extra)") from e
+        if quality not in ("high", "balanced", "fast"):
+            raise ValueError(f"OIDN quality must be high, balanced or fast, got {quality!r}")
+        self._oidn = pyoidn
+        self.quality = quality
+        self.name = f"oidn-{quality}"
+
+    def __call__(self, frame) -> np.ndarray:
+        fr = _frame(frame)
+        aux = {}
+        if fr.albedo is not None:
+            aux["albedo"] = np.ascontiguousarray(fr.albedo, dtype=np.float32)
+        if fr.normal is not None:
+            aux["normal"] = np.ascontiguousarray(fr.normal, dtype=np.float32)
+        if "normal" in aux and "albedo" not in aux:
+            aux.pop("normal")  # OIDN accepts a normal only together with an albedo
+        out = self._oidn.denoise(np.ascontiguousarray(fr.color, dtype=np.float32), hdr=True,
+                                 quality=self.quality, **aux)
+        return np.asarray(out, dtype=np.float32)
+
+    def reset(self) -> None:
+        pass
+
+
+class ONNXModel:
+    """An mcdenoise ONNX file run by the runtime driver (temporal state included)."""
+
+    def __init__(self, path: str, threads: int = 0, providers=None, profile: bool = False, log=None):
+        from runtime.denoiser import Denoiser
+
+        self.denoiser = Denoiser.load(path, providers=providers, threads=threads, profile=profile,
+                                      log=log or (lambda m: None))
+        self.path = str(path)
+        self.name = self.denoiser.contract.spec_name
+
+    def __call__(self, frame) -> np.ndarray:
+        return self.denoiser(frame)
+
+    def reset(self) -> None:
+        self.denoiser.reset()
+
+
+def load_method(name: str, threads: int = 0, providers=None, profile: bool = False, log=None):
+    """A method object for ``name``: an ``.onnx`` path or one of :data:`BUILTIN`."""
+    if name.endswith(".onnx") or os.path.sep in name:
+        return ONNXModel(name, threads=threads, providers=providers, profile=profile, log=log)
+    if name == "noisy":
+        return Noisy()
+    if name.startswith("oidn-"):
+        return OIDN(name[len("oidn-"):])
+    if name == "svgf":
+        from runtime.svgf import SVGF
+
+        return SVGF()
+    raise ValueError(f"unknown method {name!r}: give an .onnx file or one of {', '.join(BUILTIN)}")
+
+
+def shipped_models(root: str | os.PathLike | None = None) -> list[str]:
+    """Paths of the ONNX models shipped in the repository's ``models/`` folder, sorted."""
+    from pathlib import Path
+
+    base = Path(root) if root else Path(__file__).resolve().parent.parent / "models"
+    return sorted(str(p) for p in base.glob("*.onnx"))
