@@ -16,6 +16,11 @@ def test_smape_hand_computed():
     assert M.smape(p, r) == pytest.approx((2 / 4.01) / 3)
 
 
+def test_smape_one_value():
+    assert M.smape(np.array([1.0]), np.array([3.0])) == pytest.approx(2 / (4 + 0.01))
+    assert M.smape(np.array([1.0]), np.array([3.0]), eps=0.0) == pytest.approx(0.5)
+
+
 def test_relmse_hand_computed():
     p, r = np.array([2.0, 1.0]), np.array([1.0, 1.0])
     assert M.relmse(p, r) == pytest.approx(((1 / 1.01) + 0) / 2)
@@ -30,15 +35,123 @@ def test_psnr_hand_computed():
     assert M.psnr(r, r) == float("inf")
 
 
+def _tonemap_inverse(t):
+    """Radiance x with reinhard_gamma(x) == t."""
+    q = t ** T.REINHARD_GAMMA
+    return q / (1 - q)
+
+
+def test_psnr_from_known_mse():
+    # Tonemapped pred is 0.5 everywhere, ref 0: mse 0.25 -> 10 log10(4) dB, over a stack too.
+    p = np.full((2, 3, 4, 3), _tonemap_inverse(0.5))
+    assert T.reinhard_gamma(p)[0, 0, 0, 0] == pytest.approx(0.5)
+    assert M.mse_tonemapped(p, np.zeros_like(p)) == pytest.approx(0.25)
+    assert M.psnr(p, np.zeros_like(p)) == pytest.approx(10 * math.log10(4))
+
+
 def test_trmae_hand_computed():
+    # ANF Eq. 16: 1/3 E_xyt[ ||dO - dO*||_1 / (||dO*||_1 + eps) ], L1 over the channels.
     ref = np.zeros((2, 1, 1, 3))
     ref[1] = 1.0
     pred = np.zeros((2, 1, 1, 3))
     pred[1] = 0.5
-    # |0.5 - 1| / (1 + 0.01) per element
-    assert M.trmae(pred, ref) == pytest.approx(0.5 / 1.01)
+    # ||(-0.5, -0.5, -0.5)||_1 = 1.5 over ||(1, 1, 1)||_1 + 0.01 = 3.01, times 1/3
+    assert M.trmae(pred, ref) == pytest.approx(1.5 / 3.01 / 3)
     with pytest.raises(ValueError, match="T>=2"):
         M.trmae(pred[:1], ref[:1])
+
+
+def test_trmae_two_pixels_three_frames():
+    ref = np.zeros((3, 1, 2, 3))
+    pred = np.zeros((3, 1, 2, 3))
+    ref[1, 0, 0] = (2.0, 0.0, 0.0)  # pixel 0: ref jumps up then back, pred stays
+    pred[:, 0, 1] = [[0, 0, 0], [0, 1, 0], [0, 1, 0]]  # pixel 1: pred flickers once, ref static
+    # pixel 0: t=1 |2|/(2+.01), t=2 |2|/(2+.01); pixel 1: t=1 1/(0+.01), t=2 0
+    expected = (2 / 2.01 + 2 / 2.01 + 1 / 0.01 + 0) / 4 / 3
+    assert M.trmae(pred, ref) == pytest.approx(expected)
+    assert M.trmae(ref, ref) == 0.0
+
+
+def _ssim_brute_force(x, y):
+    """Independent SSIM: per channel, per window position, weighted statistics in a loop."""
+    k, sigma = 11, 1.5
+    ax = np.arange(k) - 5.0
+    g2 = np.exp(-(ax[:, None] ** 2 + ax[None, :] ** 2) / (2 * sigma ** 2))
+    g2 /= g2.sum()
+    tx, ty = T.reinhard_gamma(x), T.reinhard_gamma(y)
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    vals = []
+    for c in range(3):
+        for i in range(x.shape[0] - k + 1):
+            for j in range(x.shape[1] - k + 1):
+                a = tx[i:i + k, j:j + k, c]
+                b = ty[i:i + k, j:j + k, c]
+                ma, mb = (g2 * a).sum(), (g2 * b).sum()
+                va = (g2 * (a - ma) ** 2).sum()
+                vb = (g2 * (b - mb) ** 2).sum()
+                cov = (g2 * (a - ma) * (b - mb)).sum()
+                vals.append((2 * ma * mb + c1) * (2 * cov + c2) / ((ma ** 2 + mb ** 2 + c1) * (va + vb + c2)))
+    return float(np.mean(vals))
+
+
+def test_ssim_identical_is_one_and_constant_images_reduce_to_luminance_term():
+    rng = np.random.default_rng(1)
+    x = rng.random((16, 13, 3)) * 4
+    assert M.ssim(x, x) == pytest.approx(1.0, abs=1e-12)
+    # Constant images: variances and covariance are 0, so SSIM = (2ab + C1) / (a^2 + b^2 + C1)
+    # with a, b the tonemapped values.
+    a, b = 0.3, 0.6
+    pa = np.full((12, 12, 3), _tonemap_inverse(a))
+    pb = np.full((12, 12, 3), _tonemap_inverse(b))
+    c1 = 0.01 ** 2
+    assert M.ssim(pa, pb) == pytest.approx((2 * a * b + c1) / (a * a + b * b + c1), rel=1e-9)
+
+
+def test_ssim_matches_brute_force_windows_and_averages_frames():
+    rng = np.random.default_rng(2)
+    x = rng.random((15, 17, 3)) * 2
+    y = np.clip(x + 0.3 * rng.standard_normal(x.shape), 0, None)
+    want = _ssim_brute_force(x, y)
+    assert 0.2 < want < 0.99
+    assert M.ssim(x, y) == pytest.approx(want, rel=1e-10)
+    # A stack is the mean over frames (all frames have the same number of windows).
+    assert M.ssim(np.stack([x, x]), np.stack([y, x])) == pytest.approx((want + 1) / 2, rel=1e-10)
+
+
+def test_ssim_and_flip_reject_bad_shapes():
+    with pytest.raises(ValueError, match="at least 11x11"):
+        M.ssim(np.zeros((10, 20, 3)), np.zeros((10, 20, 3)))
+    for fn in (M.ssim, M.flip):
+        with pytest.raises(ValueError, match="same shape"):
+            fn(np.zeros((16, 16, 3)), np.zeros((16, 17, 3)))
+        with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
+            fn(np.zeros((16, 16)), np.zeros((16, 16)))
+
+
+def test_flip_zero_when_identical_and_monotone_in_noise():
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[0:48, 0:48] / 48.0
+    ref = np.stack([xx, yy, 0.5 * (xx + yy)], axis=-1) * 3.0
+    assert M.flip(ref, ref) == 0.0
+    noise = rng.standard_normal(ref.shape)
+    errs = [M.flip(np.clip(ref * (1 + s * noise), 0, None), ref) for s in (0.05, 0.2, 0.8)]
+    assert errs[0] > 0.01
+    assert errs[0] < errs[1] < errs[2] <= 1.0
+    # Stacks: mean over frames; non-finite input is scored, not passed to FLIP.
+    noisy = np.clip(ref * (1 + 0.2 * noise), 0, None)
+    assert M.flip(np.stack([ref, noisy]), np.stack([ref, ref])) == pytest.approx(errs[1] / 2, rel=1e-6)
+    bad = ref.copy()
+    bad[0, 0] = np.nan
+    bad[1, 1] = np.inf
+    assert 0.0 < M.flip(bad, ref) < errs[0]
+
+
+def test_flip_without_package_says_how_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "flip_evaluator", None)
+    with pytest.raises(ImportError, match="pip install flip-evaluator"):
+        M.flip(np.zeros((16, 16, 3)), np.zeros((16, 16, 3)))
 
 
 def test_numpy_and_torch_agree_and_torch_has_gradients():
