@@ -109,8 +109,11 @@ def test_wrong_train_type_or_value_is_named(name, key, value, pattern):
 
 @pytest.mark.parametrize("name", SPECS)
 def test_wrong_params_type_is_named(name):
-    raw = _replace_key(load_spec(name).raw, "blocks", '"three"')
-    with pytest.raises(SpecError, match=r"\[params\]\.blocks: expected an integer, got str"):
+    spec = load_spec(name)
+    key = next(k for k, v in spec.params.items()  # an integer key named once in the file
+               if type(v) is int and len(re.findall(rf"(?m)^{k}\s*=", spec.raw)) == 1)
+    raw = _replace_key(spec.raw, key, '"three"')
+    with pytest.raises(SpecError, match=rf"\[params\]\.{key}: expected an integer, got str"):
         build_model(parse_spec(raw, "q.toml"))
 
 

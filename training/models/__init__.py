@@ -39,13 +39,15 @@ one child module per spec stage, named after it (``model.temporal``, ``model.pre
     fastest equivalent code path); the exporter exports ``model.deploy()``.
 
 Training calls ``model.train()`` / ``model.eval()`` as usual; the builders are in the modules
-of this package (``wskpn``: WSKPN).
+of this package (``wskpn``: WSKPN; ``nbg``: neural bilateral grid), with the pieces they
+share (albedo demodulation, temporal accumulation, network features) in ``common``.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from runtime.contract import HISTORY, STATE_INPUT_PREFIX
+from training.models import nbg  # noqa: F401  (registers type "nbg")
 from training.models import wskpn  # noqa: F401  (registers type "wskpn")
 
 

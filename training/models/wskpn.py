@@ -35,13 +35,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
-from runtime.transfer import get as get_transfer
+from training.models.common import (ALBEDO_EPS, TemporalStage, aux_features,  # noqa: F401  (re-exported)
+                                    temporal_accumulate)
 from training.specs import ModelSpec, SpecError, register
 
-#: Albedo demodulation epsilon: irradiance = radiance / (albedo + ALBEDO_EPS), and the result
-#: is multiplied back by the same (albedo + ALBEDO_EPS), so an identity filter returns the
-#: input exactly.  0 albedo (misses, delta BSDFs) makes irradiance 100x radiance there.
-ALBEDO_EPS = 1e-2
 #: Importance values are clamped to ±IMPORTANCE_BOUND before exp: a weight ratio of
 #: exp(2·20) ≈ 2e17 already means "ignore", and bounded weights keep every window sum
 #: positive and far from float32 under/overflow, so no division by 0 for any network output.
@@ -94,17 +91,6 @@ class WSKPNParams:
 # Plain functions (each tested on its own)
 # ----------------------------------------------------------------------------------------------
 
-def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.Tensor,
-                        alpha: float) -> torch.Tensor:
-    """Exponential moving average with the reprojected history (§4.1).
-
-    color, prev: (N, 3, H, W) linear HDR; history: (N, 1, H, W) in [0, 1].
-    Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
-    multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
-    """
-    return color + (history * (1.0 - alpha)) * (prev - color)
-
-
 def wskpn_features(accum: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
                    depth: torch.Tensor, transfer: str) -> torch.Tensor:
     """ImportanceNet input (§5.1): (N, 10, H, W) =
@@ -115,8 +101,7 @@ def wskpn_features(accum: torch.Tensor, albedo: torch.Tensor, normal: torch.Tens
     feature in [0, 1] whatever the scene units (the paper scales linearly to [0, 1]); a crop's
     maximum differs from its frame's, which training crops must live with.
     """
-    dmax = depth.amax(dim=(1, 2, 3), keepdim=True).clamp(min=1e-12)
-    return torch.cat([get_transfer(transfer)(accum), albedo, normal * 0.5 + 0.5, depth / dmax], dim=1)
+    return aux_features(accum, albedo, normal, depth, transfer)
 
 
 def downsample2(x: torch.Tensor) -> torch.Tensor:
@@ -378,17 +363,6 @@ class ImportanceUNet(nn.Module):
 # ----------------------------------------------------------------------------------------------
 # Stages and the model
 # ----------------------------------------------------------------------------------------------
-
-class TemporalStage(nn.Module):
-    """Stage "temporal": :func:`temporal_accumulate` with a fixed α."""
-
-    def __init__(self, alpha: float):
-        super().__init__()
-        self.alpha = float(alpha)
-
-    def forward(self, color, prev, history):
-        return temporal_accumulate(color, prev, history, self.alpha)
-
 
 class PredictionStage(nn.Module):
     """Stage "prediction": features (:func:`wskpn_features`) -> ImportanceNet.

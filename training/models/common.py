@@ -1,0 +1,67 @@
+"""Pieces shared by several model types (import torch).
+
+Defined here once so that every model demodulates, accumulates and builds its network input
+the same way (STYLE: no magic constant in ten files):
+
+* :data:`ALBEDO_EPS` and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
+* :func:`temporal_accumulate` and :class:`TemporalStage`: the exponential moving average with
+  the driver's reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2);
+* :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth].
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from runtime.transfer import get as get_transfer
+
+#: Albedo demodulation epsilon: irradiance = radiance / (albedo + ALBEDO_EPS), and the result
+#: is multiplied back by the same (albedo + ALBEDO_EPS), so an identity filter returns the
+#: input exactly.  0 albedo (misses, delta BSDFs) makes irradiance 100x radiance there.
+ALBEDO_EPS = 1e-2
+
+
+def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+    """Irradiance (N, 3, H, W) = color / (albedo + ALBEDO_EPS); both (N, 3, H, W), >= 0."""
+    return color / (albedo + ALBEDO_EPS)
+
+
+def remodulate(irradiance: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`demodulate`: irradiance · (albedo + ALBEDO_EPS)."""
+    return irradiance * (albedo + ALBEDO_EPS)
+
+
+def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.Tensor,
+                        alpha: float) -> torch.Tensor:
+    """Exponential moving average with the reprojected history (WSKPN §4.1, NBG §4.6).
+
+    color, prev: (N, C, H, W) linear HDR; history: (N, 1, H, W) in [0, 1].
+    Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
+    multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
+    """
+    return color + (history * (1.0 - alpha)) * (prev - color)
+
+
+class TemporalStage(nn.Module):
+    """Stage "temporal": :func:`temporal_accumulate` with a fixed α."""
+
+    def __init__(self, alpha: float):
+        super().__init__()
+        self.alpha = float(alpha)
+
+    def forward(self, color, prev, history):
+        return temporal_accumulate(color, prev, history, self.alpha)
+
+
+def aux_features(color: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
+                 depth: torch.Tensor, transfer: str) -> torch.Tensor:
+    """Network input (WSKPN §5.1, NBG §5): (N, 10, H, W) =
+    [transfer(color) (3), albedo (3), normal·0.5+0.5 in [0, 1] (3), depth / per-image max (1)].
+
+    color: linear HDR radiance (albedo-modulated, as rendered); normal: unit vectors (0 on a
+    miss -> 0.5); depth: ray distance, 0 on a miss.  Dividing by the per-image maximum keeps the
+    feature in [0, 1] whatever the scene units (the papers scale linearly to [0, 1]); a crop's
+    maximum differs from its frame's, which training crops must live with.
+    """
+    dmax = depth.amax(dim=(1, 2, 3), keepdim=True).clamp(min=1e-12)
+    return torch.cat([get_transfer(transfer)(color), albedo, normal * 0.5 + 0.5, depth / dmax], dim=1)

@@ -1,0 +1,459 @@
+"""NBG: neural bilateral grid denoiser (Meng et al., EGSR 2020), registered as type "nbg".
+
+Pipeline (stages, in order; each is a submodule so exported node names carry its prefix):
+
+``temporal`` (optional, §4.6)
+    [outlier removal (§5, ``params.outlier_removal``)], demodulation
+    irr = color / (albedo + ALBEDO_EPS) (§4.1 "data decomposition"), then the exponential
+    moving average of the *demodulated* radiance with decay α = ``params.alpha`` (0.2):
+    accum = history·(α·irr + (1−α)·prev_accum) + (1−history)·irr; ``next_accum`` = accum.
+``guide`` (§4.1, §4.5, §5)
+    GuideNet on [transfer(radiance), albedo, (normal+1)/2, depth/max(depth)] (10 channels,
+    radiance = accum re-modulated by the albedo, or the input colour without a temporal stage,
+    in which case outlier removal and demodulation happen here).  5×5 convolutions, ReLU,
+    the last layer linear: ``grids`` guide images through a sigmoid (in [0, 1]) and, with more
+    than one grid, ``grids`` blend logits normalised as exp(l − max) / Σ exp(l − max).
+``splat`` (§4.2, Eq. 8–12)
+    per scale s, the HDR irradiance and a homogeneous weight channel are splatted into a
+    bilateral grid with tent (trilinear) weights at g(j) = (m/η_h, n/η_w, 255·guide_s(j)/η_d),
+    rates (η_h, η_w, η_d) = ``params.rates``·2^s.
+``slice`` (§4.3, Eq. 13, Eq. 15)
+    trilinear read-out at the same guide by gathering the 8 corner cells of each pixel,
+    renormalised by the sliced weight of non-empty cells (see :func:`slice_grid`), blended over
+    the scales with the per-pixel weights, and re-modulated by (albedo + ALBEDO_EPS).
+
+Grid layout.  A grid for an (H, W) image at rates (η_h, η_w, η_d) has
+``D = floor(255/η_d) + 2`` range cells and ``(H−1)//η_h + 2`` × ``(W−1)//η_w + 2`` spatial
+cells (:func:`grid_shape`): every pixel's coordinate ``(m/η_h, n/η_w, z)`` and the cell above it
+on each axis lie inside.  (The paper's Eq. 8 gives ⌈h/η_h⌉ etc., one cell fewer than a tent of
+unit support needs at the last pixel.)  Stored (N, C+1, D, Hg, Wg): C value channels, then the
+weight sum Σ_j w_{p,j} of Eq. 10.
+
+Splatting is a single ``scatter_add`` over the 8 corners of every pixel (ONNX ScatterElements
+with reduction "add", opset >= 16).  ``index_put_(accumulate=True)`` must not be used: the
+TorchScript exporter turns it into a ScatterND *without* reduction, wrong where indices repeat.
+Slicing is ``gather`` on the flattened grid (5-D ``grid_sample`` does not export).  Both are
+differentiable w.r.t. the values and the guide (the corner weights carry the guide gradient;
+the tent's kink sits on cell boundaries, where the trilinear weights are continuous).
+
+Demodulation.  0 albedo (misses, delta BSDFs) is handled as in WSKPN, by the one
+:data:`training.models.common.ALBEDO_EPS`: irradiance = radiance / (albedo + ALBEDO_EPS) is
+finite everywhere and re-modulation multiplies by the same factor, so a constant-irradiance
+image comes back exactly.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Literal, Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from training.models.common import TemporalStage, aux_features, demodulate, remodulate, temporal_accumulate
+from training.specs import ModelSpec, SpecError, register
+
+#: Range of the guide in grid units before division by η_d (Eq. 8: "d ... which we set to 255").
+GUIDE_RANGE = 255.0
+#: Pixel layers NBG reads, and the channel count of the GuideNet input.
+LAYERS = ("color", "albedo", "normal", "depth")
+N_FEATURES = 10
+#: Name of the state tensor of the temporal stage (accumulated *demodulated* radiance).
+ACCUM = "accum"
+#: Outlier removal (§5, after [KBS15]): a pixel whose luminance exceeds the mean of its 8
+#: neighbours by more than OUTLIER_SIGMAS of their standard deviation *and* by more than
+#: OUTLIER_SLACK of that mean is replaced by the neighbours' mean colour.
+OUTLIER_SIGMAS = 3.0
+OUTLIER_SLACK = 0.1
+#: Rec. 709 luminance weights.
+LUMA = (0.2126, 0.7152, 0.0722)
+#: Floor of the slice denominator: where no non-empty cell is in reach (never with the splat
+#: guide itself) the sliced value is 0 instead of 0/0.
+SLICE_FLOOR = 1e-12
+#: Slice normalisations (see :func:`slice_grid`).
+NORMALIZATIONS = ("cell", "homogeneous")
+
+
+@dataclass(frozen=True)
+class NBGParams:
+    """``[params]`` of an "nbg" spec.
+
+    layers: convolution layers of the GuideNet (Fig. 2: 2 for 1 spp, 7 for 64 spp), all 5×5.
+    width: channels of the hidden layers (the first layer's with ``dense``).
+    dense: with ``dense``, layers 2..layers−1 form a dense block (each sees the concatenation
+        of all earlier feature maps and adds ``growth`` channels); Fig. 2 right.
+    growth: channels each dense-block layer adds (used only with ``dense``).
+    grids: bilateral grid scales (1, or 3 as in §4.5; scale s halves the resolution of s−1).
+    rates: (η_h, η_w, η_d) at scale 0 (§5: 4, 4, 4): pixels per cell vertically and
+        horizontally, and guide units (of the range 255) per range cell; doubled per scale.
+    outlier_removal: §5 pre-process of the colour (off by default; the paper used it on its
+        64-spp Tungsten data).
+    alpha: weight of the current frame in the temporal accumulation (used only with a
+        "temporal" stage).  §4.6's "decay factor ... 0.2" is read as in BMFR [KIM*19] / SVGF,
+        whose reprojection it cites, and as WSKPN's α: the new frame gets 0.2, history 0.8.
+    normalization: "cell" (the paper, Eq. 10 + 13: each non-empty cell holds the weighted mean
+        of its pixels and slicing averages non-empty cells) or "homogeneous" (classic bilateral
+        grid: slice the weighted sums and divide by the sliced weight sum).
+    """
+
+    layers: int = 2
+    width: int = 16
+    dense: bool = False
+    growth: int = 8
+    grids: int = 3
+    rates: tuple[int, ...] = (4, 4, 4)
+    outlier_removal: bool = False
+    alpha: float = 0.2
+    normalization: Literal["cell", "homogeneous"] = "cell"
+
+    def __post_init__(self):
+        if self.layers < 2:
+            raise ValueError(f"layers: the GuideNet needs >= 2 layers, got {self.layers}")
+        if self.dense and self.layers < 3:
+            raise ValueError(f"layers: a dense GuideNet needs >= 3 layers, got {self.layers}")
+        if self.width < 1 or self.growth < 1:
+            raise ValueError(f"width, growth: must be >= 1, got {self.width}, {self.growth}")
+        if not 1 <= self.grids <= 4:
+            raise ValueError(f"grids: must be 1..4 (the paper: 1 or 3), got {self.grids}")
+        if len(self.rates) != 3 or any(r < 1 for r in self.rates):
+            raise ValueError(f"rates: need [eta_h, eta_w, eta_d] >= 1, got {list(self.rates)}")
+        if self.rates[2] * 2 ** (self.grids - 1) > GUIDE_RANGE:
+            raise ValueError(f"rates: eta_d·2^(grids-1) = {self.rates[2] * 2 ** (self.grids - 1)} leaves "
+                             f"no range resolution (> {GUIDE_RANGE:g})")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha: must be in (0, 1], got {self.alpha}")
+
+    def scale_rates(self, s: int) -> tuple[int, int, int]:
+        """(η_h, η_w, η_d) of scale s: ``rates``·2^s (§4.5)."""
+        return tuple(r * 2 ** s for r in self.rates)
+
+
+# ----------------------------------------------------------------------------------------------
+# Plain functions (each tested on its own)
+# ----------------------------------------------------------------------------------------------
+
+def grid_shape(h, w, rates: Sequence[int]):
+    """(D, Hg, Wg) of the grid for an (h, w) image at rates (η_h, η_w, η_d); see the module
+    docstring.  h, w may be traced sizes (the export keeps them dynamic)."""
+    sh, sw, sd = rates
+    return int(GUIDE_RANGE // sd) + 2, (h - 1) // sh + 2, (w - 1) // sw + 2
+
+
+def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
+    """Trilinear corners of every pixel in the grid of :func:`grid_shape`.
+
+    guide: (N, 1, H, W) in [0, 1] (values outside are clamped to the grid's range cells).
+    Returns (index, weight): both (N, 1, 8·H·W), corner-major (corner k of pixel j at
+    k·H·W + j); index: int64 flat index d·Hg·Wg + y·Wg + x into the (D, Hg, Wg) grid; weight:
+    the tent weight T(g(j) − p) (Eq. 9, 11) in the guide's dtype, Σ over a pixel's 8 = 1.
+    Differentiable w.r.t. ``guide`` through the range weights.
+    """
+    n, _, h, w = guide.shape
+    sh, sw, sd = rates
+    d, hg, wg = grid_shape(h, w, rates)
+    dev, dt = guide.device, guide.dtype
+    ys = torch.arange(h, device=dev)
+    xs = torch.arange(w, device=dev)
+    y0 = (ys // sh).view(h, 1)
+    x0 = (xs // sw).view(1, w)
+    fy = ((ys % sh).to(dt) / sh).view(h, 1)
+    fx = ((xs % sw).to(dt) / sw).view(1, w)
+    z = guide * (GUIDE_RANGE / sd)
+    z0 = torch.floor(z).clamp(0.0, d - 2.0).detach()
+    fz = z - z0
+    base = (z0.to(torch.int64) * hg + y0) * wg + x0  # (N, 1, H, W)
+    plane = hg * wg
+    idx, wts = [], []
+    for dz, wz in ((0, 1.0 - fz), (plane, fz)):
+        for dy, wy in ((0, 1.0 - fy), (wg, fy)):
+            wzy = wz * wy
+            for dx, wx in ((0, 1.0 - fx), (1, fx)):
+                idx.append(base + (dz + dy + dx))
+                wts.append(wzy * wx)
+    return (torch.cat(idx, dim=1).reshape(n, 1, -1),
+            torch.cat(wts, dim=1).reshape(n, 1, -1))
+
+
+def splat_at(values: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, cells: int) -> torch.Tensor:
+    """Scatter-add [values·w, w] into a flat grid: values (N, C, H, W); index, weight from
+    :func:`corner_coords`; cells = D·Hg·Wg.  Returns (N, C+1, cells): Σ_j w_{p,j} r(j) per
+    channel, then Σ_j w_{p,j} (Eq. 10's numerator and denominator)."""
+    n, c = values.shape[0], values.shape[1]
+    src = torch.cat([values, torch.ones_like(values[:, :1])], dim=1).reshape(n, c + 1, 1, -1)
+    src = (src * weight.reshape(n, 1, 8, -1)).reshape(n, c + 1, -1)
+    grid = values.new_zeros((n, c + 1, cells))
+    return grid.scatter_add(2, index.expand(n, c + 1, index.shape[-1]), src)
+
+
+def splat(values: torch.Tensor, guide: torch.Tensor, rates: Sequence[int]) -> torch.Tensor:
+    """Bilateral grid construction (Eq. 10–12) with tent weights.
+
+    values: (N, C, H, W) HDR data (irradiance); guide: (N, 1, H, W) in [0, 1];
+    rates: (η_h, η_w, η_d).  Returns (N, C+1, D, Hg, Wg) (see :func:`grid_shape`): weighted
+    sums of each channel, then the weight sum.  Differentiable w.r.t. values and guide.
+    """
+    d, hg, wg = grid_shape(values.shape[-2], values.shape[-1], rates)
+    index, weight = corner_coords(guide, rates)
+    grid = splat_at(values, index, weight, d * hg * wg)
+    return grid.reshape(values.shape[0], values.shape[1] + 1, d, hg, wg)
+
+
+def slice_grid_at(grid: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, h, w,
+                  normalization: str = "cell") -> torch.Tensor:
+    """Slicing (Eq. 13) at precomputed corners.
+
+    grid: (N, C+1, ...) from :func:`splat` (any trailing shape of D·Hg·Wg cells); index,
+    weight: :func:`corner_coords` of the slicing guide.  With S the weighted sums and W the
+    weight sum of a cell, "cell" reads M = S/W of the non-empty cells (W > 0), Eq. 10, and
+    divides by the sliced indicator Σ_p w_p [W_p > 0], Eq. 13; "homogeneous" returns
+    Σ_p w_p S_p / Σ_p w_p W_p.  Empty cells contribute to neither sum; where the denominator
+    is 0 the result is 0.  Returns (N, C, h, w).
+    """
+    if normalization not in NORMALIZATIONS:
+        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+    n, c1 = grid.shape[0], grid.shape[1]
+    flat = grid.reshape(n, c1, -1)
+    if normalization == "cell":
+        wsum = flat[:, c1 - 1:]
+        occupied = (wsum > 0).to(flat.dtype)
+        flat = torch.cat([flat[:, :c1 - 1] * (occupied / wsum.clamp(min=1e-30)), occupied], dim=1)
+    # One 1-D Gather on the whole grid (index_select): onnx.reference's GatherElements is wrong
+    # for more than 64 cells on the gathered axis, and ORT's Gather is the simpler kernel.
+    cells = flat.shape[-1]
+    offsets = (torch.arange(n * c1, device=index.device) * cells).reshape(n, c1, 1)
+    taps = flat.reshape(-1).index_select(0, (index + offsets).reshape(-1)).reshape(n, c1, -1)
+    acc = (taps.reshape(n, c1, 8, -1) * weight.reshape(n, 1, 8, -1)).sum(dim=2)
+    out = acc[:, :c1 - 1] / acc[:, c1 - 1:].clamp(min=SLICE_FLOOR)
+    return out.reshape(n, c1 - 1, h, w)
+
+
+def slice_grid(grid: torch.Tensor, guide: torch.Tensor, rates: Sequence[int],
+               normalization: str = "cell") -> torch.Tensor:
+    """Read a grid from :func:`splat` at ``guide`` (N, 1, H, W) with trilinear weights
+    (gather-based; see :func:`slice_grid_at`).  Returns (N, C, H, W)."""
+    index, weight = corner_coords(guide, rates)
+    return slice_grid_at(grid, index, weight, guide.shape[-2], guide.shape[-1], normalization)
+
+
+def luminance(color: torch.Tensor) -> torch.Tensor:
+    """Rec. 709 luminance: (N, 3, H, W) -> (N, 1, H, W)."""
+    return LUMA[0] * color[:, 0:1] + LUMA[1] * color[:, 1:2] + LUMA[2] * color[:, 2:3]
+
+
+def remove_outliers(color: torch.Tensor, sigmas: float = OUTLIER_SIGMAS, slack: float = OUTLIER_SLACK) -> torch.Tensor:
+    """Outlier (firefly) suppression (§5, after [KBS15]).
+
+    color: (N, 3, H, W) linear HDR, H, W >= 2.  With μ, σ² the mean and variance of the
+    luminance of the 8 neighbours (reflect-padded borders, so the pixel itself never counts),
+    a pixel whose luminance L exceeds (1 + slack)·μ + sigmas·σ is replaced by its neighbours'
+    mean colour (written without a square root: e = L − (1+slack)·μ > 0 and e² > sigmas²·σ²).
+    Smooth images are left unchanged (L ≈ μ); an isolated spike is removed.  The paper cites
+    [KBS15] without giving its rule; this is that kind of local-statistics spike test.
+    """
+    lum = luminance(color)
+    stack = torch.cat([color, lum, lum * lum], dim=1)
+    mean9 = F.avg_pool2d(F.pad(stack, (1, 1, 1, 1), mode="reflect"), 3, stride=1)
+    mean8 = (9.0 * mean9 - stack) / 8.0
+    mu, var = mean8[:, 3:4], (mean8[:, 4:5] - mean8[:, 3:4] ** 2).clamp(min=0.0)
+    excess = lum - (1.0 + slack) * mu
+    outlier = ((excess > 0) & (excess * excess > (sigmas * sigmas) * var)).to(color.dtype)
+    return color + outlier * (mean8[:, :3] - color)
+
+
+def blend_weights(logits: torch.Tensor) -> list[torch.Tensor]:
+    """Per-pixel scale weights (Eq. 15) from G logits (N, G, H, W): w_i = exp(l_i − m) / Σ,
+    m = max_i l_i, written per channel (onnxruntime's channel softmax is slow), and the last
+    w_{G−1} = 1 − Σ_{i<G−1} w_i as in the paper.  Returns G tensors (N, 1, H, W) in [0, 1]
+    summing to 1."""
+    g = logits.shape[1]
+    ls = [logits[:, i:i + 1] for i in range(g)]
+    m = ls[0]
+    for l in ls[1:]:
+        m = torch.maximum(m, l)
+    m = m.detach()
+    es = [torch.exp(l - m) for l in ls]
+    total = es[0]
+    for e in es[1:]:
+        total = total + e
+    ws = [e / total for e in es[:-1]]
+    last = 1.0 - ws[0]
+    for wi in ws[1:]:
+        last = last - wi
+    return ws + [last]
+
+
+# ----------------------------------------------------------------------------------------------
+# GuideNet and stages
+# ----------------------------------------------------------------------------------------------
+
+class GuideNet(nn.Module):
+    """Fig. 2: 5×5 convolutions with ReLU, the last one linear (the stage applies the sigmoid
+    to the guide channels).  Plain: ``layers``−1 hidden layers of ``width``.  Dense: one layer
+    of ``width``, a dense block of ``layers``−2 layers adding ``growth`` channels each, the
+    output layer on the concatenation.  (N, cin, H, W) -> (N, cout, H, W)."""
+
+    def __init__(self, cin: int, cout: int, layers: int, width: int, dense: bool, growth: int):
+        super().__init__()
+        self.dense = dense
+        self.first = nn.Conv2d(cin, width, 5, padding=2)
+        chans = width
+        hidden = []
+        for _ in range(layers - 2):
+            out = growth if dense else width
+            hidden.append(nn.Conv2d(chans, out, 5, padding=2))
+            chans = chans + out if dense else out
+        self.hidden = nn.ModuleList(hidden)
+        self.last = nn.Conv2d(chans, cout, 5, padding=2)
+
+    def forward(self, x):
+        x = F.relu(self.first(x))
+        for conv in self.hidden:
+            y = F.relu(conv(x))
+            x = torch.cat([x, y], dim=1) if self.dense else y
+        return self.last(x)
+
+
+class NBGTemporalStage(TemporalStage):
+    """Stage "temporal": [outlier removal], demodulation, then :func:`temporal_accumulate`
+    of the irradiance (the shared :class:`~training.models.common.TemporalStage`)."""
+
+    def __init__(self, alpha: float, outlier_removal: bool):
+        super().__init__(alpha)
+        self.outlier_removal = outlier_removal
+
+    def forward(self, color, albedo, prev, history):
+        if self.outlier_removal:
+            color = remove_outliers(color)
+        return super().forward(demodulate(color, albedo), prev, history)
+
+
+class GuideStage(nn.Module):
+    """Stage "guide": features -> GuideNet -> guides (sigmoid) and blend weights.
+
+    ``forward(x, albedo, normal, depth)``: x is the accumulated irradiance when a temporal
+    stage ran before (``demodulated=True``), else the colour, cleaned and demodulated here.
+    Returns (irradiance (N, 3, H, W), [guide_s (N, 1, H, W)], [w_s (N, 1, H, W)])."""
+
+    def __init__(self, params: NBGParams, transfer: str, demodulated: bool):
+        super().__init__()
+        self.grids = params.grids
+        self.transfer = transfer
+        self.demodulated = demodulated
+        self.outlier_removal = params.outlier_removal
+        cout = params.grids + (params.grids if params.grids > 1 else 0)
+        self.net = GuideNet(N_FEATURES, cout, params.layers, params.width, params.dense, params.growth)
+
+    def forward(self, x, albedo, normal, depth):
+        if self.demodulated:
+            irr, radiance = x, remodulate(x, albedo)
+        else:
+            radiance = remove_outliers(x) if self.outlier_removal else x
+            irr = demodulate(radiance, albedo)
+        raw = self.net(aux_features(radiance, albedo, normal, depth, self.transfer))
+        g = self.grids
+        guides = [torch.sigmoid(raw[:, i:i + 1]) for i in range(g)]
+        weights = blend_weights(raw[:, g:]) if g > 1 else []
+        return irr, guides, weights
+
+
+class SplatStage(nn.Module):
+    """Stage "splat": per scale, the corners of every pixel at its guide and the grid.
+    Returns ([grid_s (N, 4, cells_s)], [(index_s, weight_s)])."""
+
+    def __init__(self, params: NBGParams):
+        super().__init__()
+        self.rates = [params.scale_rates(s) for s in range(params.grids)]
+
+    def forward(self, irr, guides):
+        h, w = irr.shape[-2], irr.shape[-1]
+        grids, coords = [], []
+        for rates, guide in zip(self.rates, guides):
+            d, hg, wg = grid_shape(h, w, rates)
+            index, weight = corner_coords(guide, rates)
+            grids.append(splat_at(irr, index, weight, d * hg * wg))
+            coords.append((index, weight))
+        return grids, coords
+
+
+class SliceStage(nn.Module):
+    """Stage "slice": slice every scale at its guide, blend with the weights (Eq. 15) and
+    re-modulate.  Returns (N, 3, H, W) linear HDR."""
+
+    def __init__(self, params: NBGParams):
+        super().__init__()
+        self.normalization = params.normalization
+
+    def forward(self, grids, coords, weights, albedo):
+        h, w = albedo.shape[-2], albedo.shape[-1]
+        out = None
+        for s, (grid, (index, weight)) in enumerate(zip(grids, coords)):
+            r = slice_grid_at(grid, index, weight, h, w, self.normalization)
+            if weights:
+                r = r * weights[s]
+            out = r if out is None else out + r
+        return remodulate(out, albedo)
+
+
+class NBG(nn.Module):
+    """The NBG model; see the module docstring and ``training/models/__init__.py`` for the
+    interface.  ``forward(*inputs)`` takes the tensors named by ``input_names`` in order."""
+
+    def __init__(self, params: NBGParams, layers: Sequence[str], transfer: str, temporal: bool):
+        super().__init__()
+        self.params = params
+        self.temporal_enabled = temporal
+        if temporal:
+            self.temporal = NBGTemporalStage(params.alpha, params.outlier_removal)
+        self.guide = GuideStage(params, transfer, demodulated=temporal)
+        self.splat = SplatStage(params)
+        self.slice = SliceStage(params)
+        self.state_channels = {ACCUM: 3} if temporal else {}
+        state_in = (state_input_name(ACCUM), HISTORY) if temporal else ()
+        self.input_names = tuple(layers) + state_in
+        self.output_names = (OUTPUT,) + ((state_output_name(ACCUM),) if temporal else ())
+
+    def forward(self, *inputs):
+        if len(inputs) != len(self.input_names):
+            raise TypeError(f"NBG.forward takes {len(self.input_names)} tensors "
+                            f"{self.input_names}, got {len(inputs)}")
+        t = dict(zip(self.input_names, inputs))
+        x = t["color"]
+        if self.temporal_enabled:
+            x = self.temporal(x, t["albedo"], t[state_input_name(ACCUM)], t[HISTORY])
+        irr, guides, weights = self.guide(x, t["albedo"], t["normal"], t["depth"])
+        grids, coords = self.splat(irr, guides)
+        out = self.slice(grids, coords, weights, t["albedo"])
+        return (out, irr) if self.temporal_enabled else (out,)
+
+    def deploy(self) -> "NBG":
+        """Inference copy: eval mode, no gradients (there is nothing to fuse).  ``self`` is
+        left unchanged."""
+        model = copy.deepcopy(self).eval()
+        for p in model.parameters():
+            p.requires_grad_(False)
+        return model
+
+
+@register("nbg")
+def build_nbg(spec: ModelSpec) -> NBG:
+    """Builder of type "nbg": validates ``[params]`` (:class:`NBGParams`), the layers, the
+    stages (["temporal",] "guide", "splat", "slice") and the state ([accum, 3] iff there is a
+    temporal stage)."""
+    params = spec.params_as(NBGParams)
+    where = spec.path or spec.name
+    if sorted(spec.inputs.layers) != sorted(LAYERS):
+        raise SpecError(f"{where}: [inputs].layers must be {list(LAYERS)} (any order) for type "
+                        f"'nbg', got {list(spec.inputs.layers)}")
+    temporal = "temporal" in spec.stages
+    stages = ("guide", "splat", "slice")
+    stages = ("temporal",) + stages if temporal else stages
+    if tuple(spec.stages) != stages:
+        raise SpecError(f"{where}: stages must be {list(stages)} for type 'nbg', got {list(spec.stages)}")
+    state = [(s.name, s.channels) for s in spec.state]
+    want = [(ACCUM, 3)] if temporal else []
+    if state != want:
+        raise SpecError(f"{where}: [[state]] must be {want} for type 'nbg' "
+                        f"({'with' if temporal else 'without'} a temporal stage), got {state}")
+    return NBG(params, spec.inputs.layers, spec.inputs.transfer, temporal)
