@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "denoise": ("runtime.denoise", "denoise a frame sequence with an ONNX model, print stage timings"),
     "evaluate": ("training.evaluate", "score ONNX models, Open Image Denoise and the noisy input on held-out sequences"),
     "bench": ("training.bench", "benchmark models: per-stage time (torch vs onnxruntime) and quality"),
+    "stress": ("training.stress", "error increase of every method on fireflies, NaN/Inf, cuts, defocus, motion blur, exposure..."),
 }
 
 

@@ -67,6 +67,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "shutter time, stored in the 'time' feature (default off)")
     p.add_argument("--camera-speed", type=float, default=1.0,
                    help="scale of the camera's motion per frame (default 1)")
+    p.add_argument("--aperture-scale", type=float, default=1.0,
+                   help="multiply procedural scenes' thin-lens aperture radius (stronger defocus; default 1)")
+    p.add_argument("--floor", choices=("scene", "glossy", "mirror"), default="scene",
+                   help="procedural floor material: the scene's own (default), glossy silver (GGX alpha 0.05) "
+                        "or a silver mirror")
     p.add_argument("--variant", choices=("auto", "llvm_ad_rgb", "scalar_rgb"), default="auto",
                    help="Mitsuba variant; auto picks llvm_ad_rgb when an LLVM >= 16 library is found")
     p.add_argument("--scene", metavar="FILE.xml", help="render a Mitsuba scene file instead of procedural scenes")
@@ -90,7 +95,10 @@ def _settings(args, variant: str) -> dict:
             "defocus_probability": args.defocus, "motion_blur_probability": args.motion_blur,
             "camera_speed": args.camera_speed,
             "scene": os.path.abspath(args.scene) if args.scene else None,
-            "camera_path": os.path.abspath(args.camera_path) if args.camera_path else None}
+            "camera_path": os.path.abspath(args.camera_path) if args.camera_path else None,
+            # only when changed, so data sets rendered before these options existed stay complete
+            **({"aperture_scale": args.aperture_scale} if getattr(args, "aperture_scale", 1.0) != 1.0 else {}),
+            **({"floor": args.floor} if getattr(args, "floor", "scene") != "scene" else {})}
 
 
 def plan(args) -> list[dict]:
@@ -171,7 +179,8 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
             seq = user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
                              job["motion_blur"])
         else:
-            spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed)
+            spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
+                                       getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"))
             seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
         report = progress.put if hasattr(progress, "put") else progress
         seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
@@ -243,6 +252,10 @@ def main(args) -> int:
         raise ValueError(f"--scenes must be <= {SCENE_STRIDE} (scene seeds are seed*{SCENE_STRIDE}+index)")
     if args.camera_speed < 0:
         raise ValueError(f"--camera-speed must be >= 0, got {args.camera_speed}")
+    if not args.aperture_scale > 0:
+        raise ValueError(f"--aperture-scale must be > 0, got {args.aperture_scale}")
+    if args.scene and (args.aperture_scale != 1.0 or args.floor != "scene"):
+        raise ValueError("--aperture-scale and --floor change procedural scenes; a --scene keeps its own")
     if args.camera_path and not args.scene:
         raise ValueError("--camera-path needs --scene (procedural scenes make their own camera paths)")
     if args.scene and not os.path.isfile(args.scene):

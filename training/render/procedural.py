@@ -44,6 +44,11 @@ SHAPE_KINDS = ("sphere", "cube", "cylinder", "rectangle", "disk", "blob", "torus
 SHAPE_WEIGHTS = (0.16, 0.14, 0.08, 0.08, 0.06, 0.18, 0.15, 0.15)
 #: Shapes with an inside and an outside: the only ones that may be glass.
 CLOSED_SHAPES = {"sphere", "cube", "blob", "torus", "twisted"}
+#: ``floor`` overrides of :func:`generate`: the scene's own floor, or a silver floor that is
+#: glossy (GGX alpha :data:`GLOSSY_FLOOR_ALPHA`) or a perfect mirror.  A large reflective
+#: area whose reflections move unlike the surface (motion vectors follow the first hit).
+FLOOR_KINDS = ("scene", "glossy", "mirror")
+GLOSSY_FLOOR_ALPHA = 0.05
 
 
 @dataclass
@@ -374,7 +379,8 @@ def scene_flags(seed: int, defocus: float, motion_blur: float) -> tuple[bool, bo
 
 
 def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float = 0.5,
-             motion_blur: float = 0.0, speed: float = 1.0) -> SceneSpec:
+             motion_blur: float = 0.0, speed: float = 1.0, aperture_scale: float = 1.0,
+             floor: str = "scene") -> SceneSpec:
     """The procedural scene for ``seed`` (any int >= 0), for a ``width`` x ``height`` film.
 
     ``frames`` bounds the camera path check (the camera stays above the floor and outside the
@@ -382,9 +388,16 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     probabilities that the scene gets a thin lens / per-sample shutter times, drawn from a
     stream of their own so changing them never changes the scene content.  ``speed`` scales
     the camera's motion per frame (1: about 0.5-3° of rotation and up to 0.25 units of travel).
+    ``aperture_scale`` multiplies the thin lens's aperture radius (stronger defocus) and
+    ``floor`` (:data:`FLOOR_KINDS`) replaces the floor's material; both act after every random
+    draw, so the rest of the scene stays the same.
     """
     if seed < 0:
         raise ValueError(f"scene seed must be >= 0, got {seed}")
+    if floor not in FLOOR_KINDS:
+        raise ValueError(f"floor must be one of {', '.join(FLOOR_KINDS)}, got {floor!r}")
+    if not aperture_scale > 0:
+        raise ValueError(f"aperture scale must be > 0, got {aperture_scale}")
     rng = np.random.default_rng([seed, 0])
     use_defocus, use_blur = scene_flags(seed, defocus, motion_blur)
 
@@ -405,6 +418,13 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     # floor: large enough to reach the horizon from every camera position
     floor_kind = "diffuse" if rng.random() < 0.6 else "roughplastic"
     bsdf, rec = _material(rng, floor_kind, bitmaps, uv_scale=20.0)
+    if floor == "glossy":
+        bsdf = {"type": "twosided", "bsdf": {"type": "roughconductor", "material": "Ag",
+                                             "distribution": "ggx", "alpha": GLOSSY_FLOOR_ALPHA}}
+        rec = {"kind": "roughconductor", "metal": "Ag", "alpha": GLOSSY_FLOOR_ALPHA}
+    elif floor == "mirror":
+        bsdf = {"type": "twosided", "bsdf": {"type": "conductor", "material": "Ag"}}
+        rec = {"kind": "conductor", "metal": "Ag"}
     objects["floor"] = {"type": "rectangle", "bsdf": bsdf,
                         "to_world": _matrix(look_at((0, 0, 0), (0, 1, 0), up=(0, 0, 1)) @ _scale(40, 40, 1))}
     materials["floor"] = rec
@@ -505,7 +525,7 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     focus_point = np.asarray(focus_obj["to_world"])[:3, 3]
     cam0 = path.to_world(0.0)
     focus = float(max((focus_point - cam0[:3, 3]) @ cam0[:3, 2], 1.0))
-    aperture = float(rng.uniform(0.02, 0.15) * focus / 7.0)
+    aperture = float(rng.uniform(0.02, 0.15) * focus / 7.0) * aperture_scale
     intr = Intrinsics(width, height, x_fov, aperture_radius=aperture if use_defocus else 0.0,
                       focus_distance=focus, near_clip=0.01, far_clip=1000.0)
     return SceneSpec(seed=seed, name=scene_name(seed), objects=objects, assets=assets, intrinsics=intr,
