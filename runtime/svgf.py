@@ -44,8 +44,8 @@ from runtime.inputs import SanitizeReport, sanitize_array
 from runtime.temporal import reproject
 
 #: Albedo demodulation epsilon: illumination = radiance / (albedo + ALBEDO_EPS), re-modulated by
-#: the same factor.  The same value as WSKPN's (training/models/wskpn.py); this is the runtime's
-#: definition, which training code can import (runtime/ has no torch).
+#: the same factor.  The models' value (training/models/common.py, which should import this
+#: one: runtime/ has no torch, so the definition belongs here).
 ALBEDO_EPS = 1e-2
 #: Exponential moving average weights of colour and moments (SVGF: 0.2 each).
 ALPHA_COLOR = 0.2
