@@ -1,11 +1,13 @@
-"""``mcdenoise evaluate MODEL.onnx... --data DIR``: quality on held-out sequences.
+"""``mcdenoise evaluate METHOD... --data DIR``: quality on held-out sequences.
 
-Every sequence is run frame by frame through the runtime driver (temporal state included),
-at ``--spp`` samples per pixel taken from the stored per-sample data (the first n samples;
-pixel layers recomputed with :func:`runtime.frames.pixel_means`).  Open Image Denoise
-(``pyoidn``, colour + albedo + normal, HDR, quality high) and the noisy input are scored on
-the same frames.  Metrics from :mod:`runtime.metrics`: PSNR (ANF Eq. 14, over all frames),
-SMAPE, relMSE, and TRMAE over each sequence.  torch is not needed.
+Every method (an ONNX model file, ``noisy``, ``oidn-high``, ``oidn-fast``, ``svgf``: see
+:mod:`runtime.methods`) is run frame by frame over every sequence (temporal state included,
+reset between sequences), at ``--spp`` samples per pixel taken from the stored per-sample data
+(the first n samples; pixel layers recomputed with :func:`runtime.frames.pixel_means`).  With
+``stills=True`` only each sequence's first frame is scored, after a reset (no history).
+
+Metrics from :mod:`runtime.metrics`: PSNR (ANF Eq. 14, over all frames), SSIM and FLIP, SMAPE,
+relMSE over all frames, and TRMAE (mean over sequences of 2+ frames).  torch is not needed.
 """
 from __future__ import annotations
 
@@ -14,10 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime import metrics
 from runtime.args import add_data, add_threads
-from runtime.denoiser import Denoiser
 from runtime.frames import Frame, FrameError, frame_paths, pixel_means, read_frame
-from runtime.metrics import psnr, relmse, smape, trmae
+from runtime.methods import load_method
+
+#: Metric columns, in table order (TRMAE is per sequence, the others over all frames).
+METRICS = ("psnr", "ssim", "flip", "smape", "relmse", "trmae")
 
 
 def sequences(root: str) -> list[list[str]]:
@@ -45,83 +50,113 @@ def at_spp(frame: Frame, n: int) -> Frame:
                  reference=frame.reference, meta=dict(frame.meta, spp=n), path=frame.path)
 
 
-def _scores(outs, refs) -> dict:
-    o = np.stack(outs)
-    r = np.stack(refs)
-    return {"psnr": psnr(o, r), "smape": smape(o, r), "relmse": relmse(o, r)}
+def read_sequences(data: str, stills: bool = False) -> list[list[Frame]]:
+    """Frames (with per-sample layers and a reference) of every sequence under ``data``; only
+    the first frame of each with ``stills``."""
+    out = []
+    for paths in sequences(data):
+        frames = [read_frame(p) for p in (paths[:1] if stills else paths)]
+        for f in frames:
+            if f.reference is None:
+                raise FrameError(f"{f.path}: no reference layer to score against")
+        out.append(frames)
+    return out
+
+
+def stored_spp(seqs: list[list[Frame]]) -> int:
+    """Samples per pixel every frame of ``seqs`` holds (the smallest)."""
+    return min(f.spp for s in seqs for f in s)
+
+
+def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]) -> dict:
+    """Metrics of frames ``outs`` against ``refs`` (flat lists, sequences back to back with
+    lengths ``seq_lengths``): {psnr, ssim, flip, smape, relmse, trmae, frames}."""
+    o = np.stack(outs).astype(np.float32)
+    r = np.stack(refs).astype(np.float32)
+    res = {"psnr": metrics.psnr(o, r), "ssim": metrics.ssim(o, r), "flip": metrics.flip(o, r),
+           "smape": metrics.smape(o, r), "relmse": metrics.relmse(o, r)}
+    trm, start = [], 0
+    for n in seq_lengths:
+        if n >= 2:
+            trm.append(metrics.trmae(o[start:start + n], r[start:start + n]))
+        start += n
+    res["trmae"] = float(np.mean(trm)) if trm else None
+    res["frames"] = len(outs)
+    return res
+
+
+def run_methods(methods, seqs: list[list[Frame]], spp: int, log=print) -> dict:
+    """Run ``methods`` (method objects, see :mod:`runtime.methods`) over ``seqs`` at ``spp``;
+    returns {method name: scores} (see :func:`score`).  Each sequence starts with a reset."""
+    outs: dict[str, list] = {m.name: [] for m in methods}
+    refs, lengths = [], []
+    for frames in seqs:
+        for m in methods:
+            m.reset()
+        for fr in frames:
+            fr_n = at_spp(fr, spp)
+            refs.append(fr_n.reference)
+            for m in methods:
+                outs[m.name].append(m(fr_n))
+        lengths.append(len(frames))
+    return {name: score(o, refs, lengths) for name, o in outs.items()}
+
+
+def default_methods(models: list[str], oidn: bool = True) -> list[str]:
+    """``noisy``, then ``models`` (files or method names), then ``oidn-high`` (if ``oidn``)."""
+    names = ["noisy"] + [m for m in models if m != "noisy"]
+    if oidn and "oidn-high" not in names:
+        names.append("oidn-high")
+    return names
 
 
 def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, threads: int = 0,
-             log=print) -> dict:
-    """{method: {psnr, smape, relmse, trmae, frames}} over every sequence in ``data``."""
-    seqs = sequences(data)
-    dens = {m: Denoiser.load(m, threads=threads, log=lambda msg: None) for m in models}
-    names = {m: dens[m].contract.spec_name for m in models}
-    results: dict[str, dict] = {}
-    per_method: dict[str, list] = {"noisy": []}
-    for m in models:
-        per_method[names[m]] = []
-    if oidn:
-        import pyoidn
-
-        per_method["oidn-high"] = []
-    refs_all: list = []
-    trm: dict[str, list] = {k: [] for k in per_method}
-    for paths in seqs:
-        for d in dens.values():
-            d.reset()
-        seq_out: dict[str, list] = {k: [] for k in per_method}
-        seq_ref = []
-        for p in paths:
-            fr = at_spp(read_frame(p), spp)
-            if fr.reference is None:
-                raise FrameError(f"{p}: no reference layer to score against")
-            seq_ref.append(fr.reference)
-            seq_out["noisy"].append(fr.color)
-            for m, d in dens.items():
-                seq_out[names[m]].append(d(fr))
-            if oidn:
-                seq_out["oidn-high"].append(pyoidn.denoise(
-                    np.ascontiguousarray(fr.color), albedo=np.ascontiguousarray(fr.albedo),
-                    normal=np.ascontiguousarray(fr.normal), hdr=True, quality="high"))
-        for k in per_method:
-            per_method[k] += seq_out[k]
-            if len(paths) >= 2:
-                trm[k].append(trmae(np.stack(seq_out[k]), np.stack(seq_ref)))
-        refs_all += seq_ref
-    for k, outs in per_method.items():
-        results[k] = _scores(outs, refs_all)
-        results[k]["trmae"] = float(np.mean(trm[k])) if trm[k] else None
-        results[k]["frames"] = len(outs)
-    results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp}
+             stills: bool = False, log=print) -> dict:
+    """{method: {psnr, ssim, flip, smape, relmse, trmae, frames}} over every sequence in
+    ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names; ``noisy`` and
+    (with ``oidn``) ``oidn-high`` are always added."""
+    seqs = read_sequences(data, stills)
+    methods = [load_method(n, threads=threads) for n in default_methods(models, oidn)]
+    results = run_methods(methods, seqs, spp, log=log)
+    results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
+                         "stills": bool(stills)}
     log(format_results(results))
     return results
 
 
+def _f(v, fmt):
+    return "-" if v is None else format(v, fmt)
+
+
 def format_results(results: dict) -> str:
     setup = results.get("_setup", {})
-    lines = [f"{setup.get('sequences')} sequences, {next(iter(v['frames'] for k, v in results.items() if k != '_setup'))} "
-             f"frames at {setup.get('spp')} spp from {setup.get('data')}", "",
-             "| method | PSNR dB | SMAPE | relMSE | TRMAE |", "|---|---:|---:|---:|---:|"]
+    n = next(iter(v["frames"] for k, v in results.items() if k != "_setup"))
+    lines = [f"{setup.get('sequences')} sequences, {n} frames at {setup.get('spp')} spp from "
+             f"{setup.get('data')}{' (first frames, no history)' if setup.get('stills') else ''}", "",
+             "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for k, v in results.items():
         if k == "_setup":
             continue
-        tr = "-" if v["trmae"] is None else f"{v['trmae']:.4f}"
-        lines.append(f"| {k} | {v['psnr']:.2f} | {v['smape']:.4f} | {v['relmse']:.4f} | {tr} |")
+        lines.append(f"| {k} | {v['psnr']:.2f} | {_f(v.get('ssim'), '.4f')} | {_f(v.get('flip'), '.4f')} | "
+                     f"{v['smape']:.4f} | {v['relmse']:.4f} | {_f(v['trmae'], '.4f')} |")
     return "\n".join(lines)
 
 
 def add_arguments(p):
-    p.add_argument("models", nargs="+", help="ONNX model files")
+    p.add_argument("models", nargs="+",
+                   help="ONNX model files and/or method names (noisy, oidn-high, oidn-fast, svgf)")
     add_data(p)
     p.add_argument("--spp", type=int, default=1, help="samples per pixel fed to the denoisers")
-    p.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise")
+    p.add_argument("--stills", action="store_true",
+                   help="score only each sequence's first frame, without history")
+    p.add_argument("--no-oidn", action="store_true", help="do not add Open Image Denoise (quality high)")
     p.add_argument("--json", default=None, help="write the results as JSON here")
     add_threads(p)
 
 
 def main(args) -> int:
-    res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads)
+    res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads, args.stills)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0

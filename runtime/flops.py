@@ -1,0 +1,387 @@
+"""FLOP / FMA and parameter counts of an ONNX graph at a concrete resolution.
+
+    from runtime.flops import count_flops
+    c = count_flops("models/wskpn-3.onnx", 1280, 720)
+    c.flops, c.fmas, c.params, c.per_stage["prediction"]["flops"]
+
+The graph's dynamic dimensions are bound (N = 1, H, W from the first 4-D input's named
+dims) and ONNX shape inference (with data propagation) gives every tensor a concrete shape;
+each node is then counted from its input and output shapes.  Needs the ``onnx`` package
+(``pip install onnx``; the [train] extra has it), imported only when counting, so the runtime
+driver itself stays numpy + onnxruntime.
+
+Counting rules (``out`` = elements of the node's first output, ``in`` = elements of its
+first input; a FLOP is one float add, multiply, compare, divide or transcendental; an FMA
+is one multiply-add and counts as 2 FLOPs):
+
+* ``Conv``: FMAs = N * Cout * Hout * Wout * (Cin / groups) * kh * kw (any number of spatial
+  axes); + ``out`` FLOPs for the bias if present.  ``ConvTranspose``: FMAs =
+  N * Cin * Hin * Win * (Cout / groups) * kh * kw, + bias as for Conv.
+* ``MatMul``: FMAs = (batch elements of the output) * M * N * K.  ``Gemm``: M * N * K FMAs,
+  + M * N FLOPs for C, + M * N for alpha/beta when they are not 1.  ``Einsum``: FMAs = the
+  product of every index's size (one multiply-add per point of the index space).
+* Elementwise ops (:data:`ELEMENTWISE`: arithmetic, comparisons, activations, ``Exp``, ``Pow``,
+  ``Clip``, ``Where``...): 1 FLOP per output element; transcendentals count as 1 too.
+* ``BatchNormalization`` (inference): 2 per element (scale and shift after folding).
+  ``InstanceNormalization`` / ``LayerNormalization``: 5 per element (mean, variance, normalise,
+  scale, shift; an approximation).  ``Softmax`` / ``LogSoftmax``: 5 per element (max,
+  subtract, exp, sum, divide).
+* Pooling (``AveragePool``, ``MaxPool``, ``LpPool``): ``out`` * window size (kh * kw: the
+  window's adds or compares; the average's divide is counted in the window).  Global pooling:
+  ``in``.
+* Reductions (``ReduceSum``, ``ReduceMax``, ``ReduceMean``...), ``CumSum``: ``in`` (one op per
+  input element).
+* ``Resize``: nearest 0; linear / cubic 2 * 2^k - 1 per output element for k resized axes (a
+  2^k-tap weighted sum).  ``GridSample``: bilinear 7 per output element, nearest 0.
+* Data movement and shape ops (:data:`FREE`: Slice, Concat, Reshape, Transpose, Gather, Pad,
+  Cast, Shape...): 0.
+* Anything else is *not counted*: listed in :attr:`FlopCount.uncounted`, never silently 0.
+
+Parameters: elements of the floating-point initializers that feed a weight input of
+``Conv``, ``ConvTranspose``, ``Gemm``, ``MatMul``, ``Einsum``, the normalisations or ``PRelu``
+(scalar and shape constants are not parameters); :attr:`FlopCount.constants` counts every
+other float initializer element.
+
+Stages: a node belongs to stage ``s`` when its name starts with ``/<s>/`` (the exporter's
+scopes, as in :func:`runtime.timing.graph_stage_times`); other nodes go to :data:`OTHER`.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Stage of nodes whose name carries no ``/<stage>/`` prefix.
+OTHER = "other"
+
+ELEMENTWISE = frozenset({
+    "Add", "Sub", "Mul", "Div", "Pow", "Exp", "Log", "Sqrt", "Reciprocal", "Neg", "Abs", "Sign",
+    "Relu", "LeakyRelu", "PRelu", "Elu", "Selu", "Celu", "Gelu", "Sigmoid", "HardSigmoid",
+    "HardSwish", "Tanh", "Softplus", "Softsign", "Mish", "Erf", "Sin", "Cos", "Tan", "Atan",
+    "Floor", "Ceil", "Round", "Clip", "Min", "Max", "Mean", "Sum", "Where", "Equal", "Less",
+    "LessOrEqual", "Greater", "GreaterOrEqual", "Not", "And", "Or", "Xor", "IsNaN", "IsInf",
+    "Mod", "ThresholdedRelu", "Shrink",
+})
+FREE = frozenset({
+    "Slice", "Concat", "Reshape", "Transpose", "Gather", "GatherElements", "GatherND", "Pad",
+    "Cast", "CastLike", "Shape", "Size", "Identity", "Unsqueeze", "Squeeze", "Flatten", "Expand",
+    "Split", "Constant", "ConstantOfShape", "Range", "Tile", "ScatterND", "ScatterElements",
+    "DepthToSpace", "SpaceToDepth", "Dropout", "NonZero", "TopK", "ArgMax", "ArgMin", "Trilu",
+    "EyeLike", "OneHot",
+})
+REDUCE = frozenset({"ReduceSum", "ReduceMax", "ReduceMin", "ReduceMean", "ReduceProd",
+                    "ReduceL1", "ReduceL2", "ReduceLogSumExp", "ReduceSumSquare", "CumSum"})
+POOL = frozenset({"AveragePool", "MaxPool", "LpPool"})
+GLOBAL_POOL = frozenset({"GlobalAveragePool", "GlobalMaxPool", "GlobalLpPool"})
+#: op -> input positions that hold weights (for the parameter count).
+WEIGHT_INPUTS = {"Conv": (1, 2), "ConvTranspose": (1, 2), "Gemm": (0, 1, 2), "MatMul": (0, 1),
+                 "Einsum": None, "BatchNormalization": (1, 2, 3, 4),
+                 "InstanceNormalization": (1, 2), "LayerNormalization": (1, 2), "PRelu": (1,)}
+_FLOAT_TYPES = {1, 10, 11, 16}  # FLOAT, FLOAT16, DOUBLE, BFLOAT16
+
+
+@dataclass
+class FlopCount:
+    """Counts for one graph at one resolution (see the module docstring for the rules)."""
+
+    width: int
+    height: int
+    flops: int = 0
+    fmas: int = 0
+    params: int = 0
+    constants: int = 0
+    per_stage: dict = field(default_factory=dict)   # stage -> {"flops", "fmas", "nodes"}
+    per_op: dict = field(default_factory=dict)      # op type -> {"flops", "fmas", "nodes"}
+    per_node: list = field(default_factory=list)    # (node name, op type, stage, flops, fmas)
+    uncounted: dict = field(default_factory=dict)   # op type -> node count
+
+    @property
+    def gflops(self) -> float:
+        return self.flops / 1e9
+
+
+def _load(model):
+    import onnx
+
+    if isinstance(model, (str, os.PathLike)):
+        return onnx.load(os.fspath(model))
+    return model
+
+
+def _bind_inputs(model, width: int, height: int, batch: int = 1):
+    """A copy of ``model`` with every dynamic input dim bound: the last two dims of 4-D
+    inputs to (H, W), any other named or unknown dim to ``batch``."""
+    import onnx
+
+    m = onnx.ModelProto()
+    m.CopyFrom(model)
+    init = {i.name for i in m.graph.initializer}
+    for inp in m.graph.input:
+        if inp.name in init:
+            continue
+        dims = inp.type.tensor_type.shape.dim
+        rank = len(dims)
+        for k, d in enumerate(dims):
+            if d.HasField("dim_value") and d.dim_value > 0:
+                continue
+            if rank >= 3 and k == rank - 2:
+                d.dim_value = height
+            elif rank >= 3 and k == rank - 1:
+                d.dim_value = width
+            else:
+                d.dim_value = batch
+    return m
+
+
+def _shapes(model) -> dict[str, tuple]:
+    import onnx
+
+    inferred = onnx.shape_inference.infer_shapes(model, strict_mode=False, data_prop=True)
+    shapes: dict[str, tuple] = {}
+    for vi in list(inferred.graph.input) + list(inferred.graph.value_info) + list(inferred.graph.output):
+        t = vi.type.tensor_type
+        if not t.HasField("shape"):
+            continue
+        dims = []
+        for d in t.shape.dim:
+            if d.HasField("dim_value"):
+                dims.append(int(d.dim_value))
+            else:
+                dims = None
+                break
+        if dims is not None:
+            shapes[vi.name] = tuple(dims)
+    for i in model.graph.initializer:
+        shapes[i.name] = tuple(int(d) for d in i.dims)
+    return shapes
+
+
+def _attrs(node) -> dict:
+    import onnx
+
+    return {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
+
+
+def _n(shape) -> int:
+    return int(np.prod(shape, dtype=np.int64)) if shape is not None else 0
+
+
+def node_cost(node, shapes: dict[str, tuple]) -> tuple[int, int] | None:
+    """(FLOPs, FMAs) of one node, or None when its op is not counted.  Raises ValueError when
+    a shape the count needs is unknown."""
+    op = node.op_type
+
+    def shape(name):
+        if name not in shapes:
+            raise ValueError(f"node {node.name!r} ({op}): shape of {name!r} unknown after inference")
+        return shapes[name]
+
+    if op in FREE:
+        return 0, 0
+    out = shape(node.output[0])
+    n_out = _n(out)
+    a = _attrs(node)
+    has_bias = len(node.input) > 2 and node.input[2] != ""
+    if op == "Conv":
+        w = shape(node.input[1])                  # (Cout, Cin/groups, k...)
+        fmas = n_out * _n(w[1:])
+        return 2 * fmas + (n_out if has_bias else 0), fmas
+    if op == "ConvTranspose":
+        x = shape(node.input[0])
+        w = shape(node.input[1])                  # (Cin, Cout/groups, k...)
+        fmas = _n(x) * _n(w[1:])
+        return 2 * fmas + (n_out if has_bias else 0), fmas
+    if op == "MatMul":
+        x = shape(node.input[0])
+        k = x[-1] if len(x) >= 1 else 1
+        fmas = n_out * k
+        return 2 * fmas, fmas
+    if op == "Gemm":
+        x = shape(node.input[0])
+        k = x[0] if a.get("transA", 0) else x[-1]
+        fmas = n_out * k
+        extra = n_out if has_bias else 0
+        if a.get("alpha", 1.0) != 1.0:
+            extra += n_out
+        if has_bias and a.get("beta", 1.0) != 1.0:
+            extra += n_out
+        return 2 * fmas + extra, fmas
+    if op == "Einsum":
+        eq = a["equation"]
+        eq = eq.decode() if isinstance(eq, bytes) else eq
+        lhs = eq.replace(" ", "").split("->")[0].split(",")
+        size: dict[str, int] = {}
+        for term, name in zip(lhs, node.input):
+            s = shape(name)
+            if "..." in term:
+                raise ValueError(f"node {node.name!r}: Einsum with '...' is not counted")
+            for ch, d in zip(term, s):
+                size[ch] = max(size.get(ch, 1), d)
+        fmas = int(np.prod(list(size.values()), dtype=np.int64))
+        return 2 * fmas, fmas
+    if op in ELEMENTWISE:
+        return n_out, 0
+    if op == "BatchNormalization":
+        return 2 * n_out, 0
+    if op in ("InstanceNormalization", "LayerNormalization", "Softmax", "LogSoftmax"):
+        return 5 * n_out, 0
+    if op in POOL:
+        return n_out * _n(a["kernel_shape"]), 0
+    if op in GLOBAL_POOL or op in REDUCE:
+        return _n(shape(node.input[0])), 0
+    if op == "Resize":
+        mode = a.get("mode", b"nearest")
+        mode = mode.decode() if isinstance(mode, bytes) else mode
+        if mode == "nearest":
+            return 0, 0
+        x = shape(node.input[0])
+        k = sum(1 for i, o in zip(x, out) if i != o)
+        return n_out * (2 * 2 ** k - 1), 0
+    if op == "GridSample":
+        mode = a.get("mode", b"bilinear")
+        mode = mode.decode() if isinstance(mode, bytes) else mode
+        return (0, 0) if mode == "nearest" else (7 * n_out, 0)
+    return None
+
+
+def stage_of(node_name: str, stages) -> str:
+    """The stage whose ``/<stage>/`` prefix starts ``node_name``, else :data:`OTHER`."""
+    for s in stages:
+        if node_name.startswith(f"/{s}/"):
+            return s
+    return OTHER
+
+
+def _stages_from_names(model) -> list[str]:
+    try:
+        from runtime.contract import parse_contract
+
+        return parse_contract({p.key: p.value for p in model.metadata_props}).stage_names
+    except ValueError:
+        return sorted({n.name.split("/")[1] for n in model.graph.node
+                       if n.name.startswith("/") and n.name.count("/") >= 2})
+
+
+def count_flops(model, width: int, height: int, stages=None, batch: int = 1) -> FlopCount:
+    """Count FLOPs, FMAs and parameters of ``model`` (path or ``onnx.ModelProto``) for one
+    frame of ``width`` x ``height`` (batch ``batch``).  ``stages``: stage names for the
+    per-stage split (default: the mcdenoise contract's stages, else the graph's top-level
+    ``/<scope>/`` names).  Raises ValueError when shape inference leaves a counted node's
+    shape unknown."""
+    model = _load(model)
+    if stages is None:
+        stages = _stages_from_names(model)
+    bound = _bind_inputs(model, width, height, batch)
+    shapes = _shapes(bound)
+    res = FlopCount(width=width, height=height)
+    for s in list(stages) + [OTHER]:
+        res.per_stage[s] = {"flops": 0, "fmas": 0, "nodes": 0}
+    for node in bound.graph.node:
+        if node.op_type in ("If", "Loop", "Scan"):
+            res.uncounted[node.op_type] = res.uncounted.get(node.op_type, 0) + 1
+            continue
+        cost = node_cost(node, shapes)
+        if cost is None:
+            res.uncounted[node.op_type] = res.uncounted.get(node.op_type, 0) + 1
+            continue
+        fl, fm = cost
+        st = stage_of(node.name, stages)
+        res.flops += fl
+        res.fmas += fm
+        for d, key in ((res.per_stage, st), (res.per_op, node.op_type)):
+            e = d.setdefault(key, {"flops": 0, "fmas": 0, "nodes": 0})
+            e["flops"] += fl
+            e["fmas"] += fm
+            e["nodes"] += 1
+        res.per_node.append((node.name, node.op_type, st, fl, fm))
+    if not res.per_stage[OTHER]["nodes"]:
+        del res.per_stage[OTHER]
+    weight_names: set[str] = set()
+    for node in bound.graph.node:
+        slots = WEIGHT_INPUTS.get(node.op_type, ())
+        if slots is None:
+            slots = range(len(node.input))
+        for k in slots:
+            if k < len(node.input):
+                weight_names.add(node.input[k])
+    for init in bound.graph.initializer:
+        if init.data_type not in _FLOAT_TYPES:
+            continue
+        n = _n(tuple(init.dims))
+        if init.name in weight_names:
+            res.params += n
+        else:
+            res.constants += n
+    return res
+
+
+# ------------------------------------------------------------------------------------------
+# This CPU's peak
+# ------------------------------------------------------------------------------------------
+
+def _cpuinfo() -> dict[str, str]:
+    info: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if ":" in line:
+                    k, v = line.split(":", 1)
+                    info.setdefault(k.strip(), v.strip())
+    except OSError:
+        pass
+    return info
+
+
+def cpu_peak(threads: int | None = None) -> dict:
+    """This CPU's fp32 peak from /proc/cpuinfo: cores x GHz x FLOPs/cycle/core.
+
+    Assumptions (returned in ``"assumptions"``): FLOPs/cycle per core for the widest vector
+    ISA in the flags, with two FMA units per core: AVX-512F 2 x 16 lanes x 2 = 64, AVX2 + FMA
+    2 x 8 x 2 = 32, AVX without FMA 16 (one 8-wide add + one 8-wide multiply), else SSE 8.
+    Some Xeons have one 512-bit FMA unit (then AVX-512 peak is half).  The clock is the
+    ``@ x.xxGHz`` of the model name, else /proc/cpuinfo's ``cpu MHz`` (the current or, in a VM,
+    nominal clock; turbo is not known).  Cores: ``threads`` if given, else the CPUs this
+    process may run on, each counted as a full core (a VM's vCPU may be a hyperthread).
+    Returns {"gflops", "cores", "ghz", "flops_per_cycle", "isa", "assumptions"}; gflops is None
+    when the clock is unknown.
+    """
+    import re
+
+    info = _cpuinfo()
+    flags = set(info.get("flags", "").split())
+    if "avx512f" in flags:
+        isa, fpc = "AVX-512F (2 FMA units assumed)", 64
+    elif "avx2" in flags and "fma" in flags:
+        isa, fpc = "AVX2 + FMA (2 FMA units assumed)", 32
+    elif "avx" in flags:
+        isa, fpc = "AVX (1 add + 1 mul per cycle)", 16
+    else:
+        isa, fpc = "SSE (1 add + 1 mul per cycle)", 8
+    ghz = None
+    m = re.search(r"@\s*([0-9.]+)\s*GHz", info.get("model name", ""))
+    if m:
+        ghz, clock_src = float(m.group(1)), "model name"
+    elif info.get("cpu MHz"):
+        ghz, clock_src = float(info["cpu MHz"]) / 1e3, "/proc/cpuinfo cpu MHz"
+    else:
+        clock_src = "unknown"
+    if threads:
+        cores = int(threads)
+    else:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:
+            cores = os.cpu_count() or 1
+    gflops = cores * ghz * fpc if ghz else None
+    return {"gflops": gflops, "cores": cores, "ghz": ghz, "flops_per_cycle": fpc, "isa": isa,
+            "assumptions": f"fp32, {cores} cores x {ghz if ghz else '?'} GHz ({clock_src}) x {fpc} "
+                           f"FLOPs/cycle ({isa}); no turbo, every vCPU counted as a full core"}
+
+
+def format_count(c: FlopCount) -> str:
+    """A short text summary (for logs)."""
+    st = ", ".join(f"{s} {v['flops'] / 1e9:.3f}" for s, v in c.per_stage.items())
+    un = f"; not counted: {c.uncounted}" if c.uncounted else ""
+    return (f"{c.flops / 1e9:.3f} GFLOP ({c.fmas / 1e9:.3f} GFMA) at {c.width}x{c.height}, "
+            f"{c.params} parameters; per stage GFLOP: {st}{un}")

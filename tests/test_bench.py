@@ -1,0 +1,132 @@
+"""mcdenoise bench: a quick run on the tiny dataset, the Pareto front, FLOP counts."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper
+
+from runtime.cli import main as cli_main
+from runtime.flops import count_flops, cpu_peak
+from runtime.methods import shipped_models
+from training import bench
+
+
+def _rows(path):
+    with open(path) as fh:
+        first = fh.readline()
+        assert first.startswith("# written by: mcdenoise bench")
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def quick_run(tiny_dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    rc = cli_main(["bench", "--quick", "--data", tiny_dataset, "--out", str(out), "--frames", "2",
+                   "--warmup", "1"])
+    assert rc == 0
+    return out
+
+
+def test_quick_bench_writes_every_file_and_method(quick_run):
+    out = quick_run
+    names = [onnx.load(p, load_external_data=False) for p in shipped_models()]
+    models = [next(p.value for p in m.metadata_props if p.key == "mcdenoise.spec_name") for m in names]
+    methods = models + list(bench.BUILTIN_METHODS)
+    md = (out / "bench.md").read_text()
+    assert "mcdenoise bench --quick" in md
+    for m in methods:
+        assert f"| {m} |" in md, m
+    for png in ("psnr_vs_time.png", "psnr_vs_spp.png", "trmae.png"):
+        data = (out / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+        assert b"mcdenoise bench --quick" in data      # the command, in the PNG's metadata
+    quality = _rows(out / "bench_quality.csv")
+    assert {r["method"] for r in quality} == set(methods)
+    # tiny set: 4 stored spp -> stills at 1, 2, 4; sequences at 1 and 4
+    assert {(r["set"], r["spp"]) for r in quality} == {("stills", "1"), ("stills", "2"), ("stills", "4"),
+                                                       ("sequences", "1"), ("sequences", "4")}
+    for r in quality:
+        assert np.isfinite(float(r["psnr"])) and r["flip"] and r["ssim"]
+    psnr = {(r["method"], r["set"], r["spp"]): float(r["psnr"]) for r in quality}
+    for m in models:
+        for s, spp in (("stills", "1"), ("sequences", "1"), ("sequences", "4")):
+            assert psnr[(m, s, spp)] > psnr[("noisy", s, spp)] + 1.0, (m, s, spp)
+    stages = _rows(out / "bench.csv")
+    assert {r["model"] for r in stages} == set(methods)
+    flops = _rows(out / "bench_flops.csv")
+    assert {r["method"] for r in flops} >= set(models)
+
+
+def test_pareto_front():
+    pts = {"noisy": (0.0, 16.0), "a": (5.0, 24.0), "b": (10.0, 23.0), "c": (12.0, 26.0),
+           "d": (12.0, 25.0), "e": (30.0, 26.0), "f": (40.0, 27.0)}
+    assert bench.pareto_front(pts) == ["noisy", "a", "c", "f"]
+    # equal points are both kept; a point equal in time but better in quality dominates
+    assert bench.pareto_front({"x": (1.0, 2.0), "y": (1.0, 2.0)}) == ["x", "y"]
+    assert bench.pareto_front({"x": (1.0, 2.0), "y": (1.0, 3.0)}) == ["y"]
+    assert bench.pareto_front({}) == []
+
+
+def _conv_model(cin, cout, k, groups, h, w, bias=True, stride=1):
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, ["N", cin, "H", "W"])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, None)
+    wt = helper.make_tensor("w", TensorProto.FLOAT, [cout, cin // groups, k, k],
+                            np.zeros(cout * cin // groups * k * k, np.float32))
+    inits = [wt]
+    inputs = ["x", "w"]
+    if bias:
+        inits.append(helper.make_tensor("b", TensorProto.FLOAT, [cout], np.zeros(cout, np.float32)))
+        inputs.append("b")
+    conv = helper.make_node("Conv", inputs, ["c"], name="/prediction/conv", kernel_shape=[k, k],
+                            pads=[k // 2] * 4, group=groups, strides=[stride, stride])
+    relu = helper.make_node("Relu", ["c"], ["y"], name="/prediction/relu")
+    g = helper.make_graph([conv, relu], "t", [x], [y], inits)
+    return helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+
+
+def test_flops_single_conv_exact():
+    m = _conv_model(cin=6, cout=8, k=3, groups=2, h=None, w=None)
+    c = count_flops(m, width=20, height=10, stages=["prediction"])
+    fmas = 1 * 8 * 10 * 20 * (6 // 2) * 3 * 3
+    assert c.fmas == fmas
+    assert c.flops == 2 * fmas + 8 * 10 * 20 + 8 * 10 * 20      # bias + relu
+    assert c.params == 8 * 3 * 3 * 3 + 8
+    assert c.per_stage == {"prediction": {"flops": c.flops, "fmas": fmas, "nodes": 2}}
+    assert not c.uncounted
+    # stride 2, no bias: output 5 x 10
+    c2 = count_flops(_conv_model(4, 4, 5, 1, None, None, bias=False, stride=2), 20, 10)
+    assert c2.fmas == 4 * 5 * 10 * 4 * 25 and c2.flops == 2 * c2.fmas + 4 * 5 * 10
+
+
+def test_flops_of_a_model_conv_layers():
+    path = next(p for p in shipped_models() if "wskpn-3" in p)
+    model = onnx.load(path)
+    w, h = 96, 64
+    c = count_flops(model, w, h)
+    inits = {i.name: tuple(i.dims) for i in model.graph.initializer}
+    convs = [n for n in model.graph.node if n.op_type == "Conv"]
+    assert convs
+    # stride-1 'same' convolutions: FMAs = H*W*Cout*Cin*kh*kw, read off the weight shapes
+    expected = sum(h * w * int(np.prod(inits[n.input[1]])) for n in convs)
+    assert c.per_op["Conv"]["fmas"] == expected == c.fmas
+    assert c.params == sum(int(np.prod(inits[n.input[k]])) for n in convs for k in (1, 2) if len(n.input) > k)
+    assert set(c.per_stage) == {"temporal", "prediction", "reconstruction"}
+    assert sum(v["flops"] for v in c.per_stage.values()) == c.flops
+    assert not c.uncounted
+    # doubling the pixel count doubles the count (but for a few per-frame scalar ops)
+    c2 = count_flops(model, 2 * w, h)
+    assert c2.fmas == 2 * c.fmas and 0 <= 2 * c.flops - c2.flops < 16
+
+
+def test_oidn_unet_count_and_peak():
+    c = bench.oidn_unet_count(1280, 720)
+    # hand sum of the published layer table, FMAs per full-resolution pixel / 9:
+    # full 8128 + half 13824/4 + quarter 27648/16 + eighth 35584/64 + sixteenth 16896/256
+    assert c["fmas"] == 9 * (1280 * 720 * 8128 + 640 * 360 * 13824 + 320 * 180 * 27648
+                             + 160 * 90 * 35584 + 80 * 45 * 16896)
+    assert c["padded"] == "1280x720" and bench.oidn_unet_count(100, 50)["padded"] == "112x64"
+    p = cpu_peak(threads=2)
+    assert p["cores"] == 2 and p["flops_per_cycle"] in (8, 16, 32, 64)
