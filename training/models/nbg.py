@@ -29,10 +29,14 @@ on each axis lie inside.  (The paper's Eq. 8 gives ⌈h/η_h⌉ etc., one cell f
 unit support needs at the last pixel.)  Stored (N, C+1, D, Hg, Wg): C value channels, then the
 weight sum Σ_j w_{p,j} of Eq. 10.
 
-Splatting is a single ``scatter_add`` over the 8 corners of every pixel (ONNX ScatterElements
-with reduction "add", opset >= 16).  ``index_put_(accumulate=True)`` must not be used: the
-TorchScript exporter turns it into a ScatterND *without* reduction, wrong where indices repeat.
-Slicing is ``gather`` on the flattened grid (5-D ``grid_sample`` does not export).  Both are
+Inside the stages a grid is stored as rows (N·cells, C+1), channels last.  Splatting adds the
+8 corners × (C+1) channels of every pixel with one 1-D ``scatter_add`` (ONNX ScatterElements
+with reduction "add", opset >= 16).  Not used, because wrong: torch's exports of ``index_add``
+and ``index_put_(accumulate=True)`` (a ScatterND *without* reduction), and ONNX ScatterND with
+reduction "add", which onnxruntime runs in parallel with lost updates where indices
+repeat (onnxruntime 1.32 CPU, measured: errors of 8% at 4 threads).  Slicing gathers the 8 corner rows with
+``index_select`` (ONNX Gather of rows, 2.5x faster than per-element GatherElements; 5-D
+``grid_sample`` does not export).  Both are
 differentiable w.r.t. the values and the guide (the corner weights carry the guide gradient;
 the tent's kink sits on cell boundaries, where the trilinear weights are continuous).
 
@@ -145,14 +149,16 @@ def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
     """Trilinear corners of every pixel in the grid of :func:`grid_shape`.
 
     guide: (N, 1, H, W) in [0, 1] (values outside are clamped to the grid's range cells).
-    Returns (index, weight): both (N, 1, 8·H·W), corner-major (corner k of pixel j at
-    k·H·W + j); index: int64 flat index d·Hg·Wg + y·Wg + x into the (D, Hg, Wg) grid; weight:
-    the tent weight T(g(j) − p) (Eq. 9, 11) in the guide's dtype, Σ over a pixel's 8 = 1.
-    Differentiable w.r.t. ``guide`` through the range weights.
+    Returns (index, weight, cells), cells = D·Hg·Wg per image:
+    index: (N·8·H·W,) int64 rows of the batch's grid stored as rows (N·cells, C+1) (cell
+    p = d·Hg·Wg + y·Wg + x of image n is row n·cells + p), ordered (image, corner, pixel);
+    weight: (N, 8, H·W, 1) the tent weights T(g(j) − p) (Eq. 9, 11) in the guide's dtype, summing
+    to 1 over a pixel's 8 corners.  Differentiable w.r.t. ``guide`` through the range weights.
     """
     n, _, h, w = guide.shape
     sh, sw, sd = rates
     d, hg, wg = grid_shape(h, w, rates)
+    cells = d * hg * wg
     dev, dt = guide.device, guide.dtype
     ys = torch.arange(h, device=dev)
     xs = torch.arange(w, device=dev)
@@ -163,7 +169,8 @@ def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
     z = guide * (GUIDE_RANGE / sd)
     z0 = torch.floor(z).clamp(0.0, d - 2.0).detach()
     fz = z - z0
-    base = (z0.to(torch.int64) * hg + y0) * wg + x0  # (N, 1, H, W)
+    image = (torch.arange(n, device=dev) * cells).view(n, 1, 1, 1)
+    base = (z0.to(torch.int64) * hg + y0) * wg + x0 + image  # (N, 1, H, W)
     plane = hg * wg
     idx, wts = [], []
     for dz, wz in ((0, 1.0 - fz), (plane, fz)):
@@ -172,19 +179,25 @@ def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
             for dx, wx in ((0, 1.0 - fx), (1, fx)):
                 idx.append(base + (dz + dy + dx))
                 wts.append(wzy * wx)
-    return (torch.cat(idx, dim=1).reshape(n, 1, -1),
-            torch.cat(wts, dim=1).reshape(n, 1, -1))
+    return torch.cat(idx, dim=1).reshape(-1), torch.cat(wts, dim=1).reshape(n, 8, h * w, 1), cells
 
 
-def splat_at(values: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, cells: int) -> torch.Tensor:
-    """Scatter-add [values·w, w] into a flat grid: values (N, C, H, W); index, weight from
-    :func:`corner_coords`; cells = D·Hg·Wg.  Returns (N, C+1, cells): Σ_j w_{p,j} r(j) per
-    channel, then Σ_j w_{p,j} (Eq. 10's numerator and denominator)."""
+def value_rows(values: torch.Tensor) -> torch.Tensor:
+    """(N, C, H, W) -> (N, H·W, C+1): the channels last, then the homogeneous channel 1."""
     n, c = values.shape[0], values.shape[1]
-    src = torch.cat([values, torch.ones_like(values[:, :1])], dim=1).reshape(n, c + 1, 1, -1)
-    src = (src * weight.reshape(n, 1, 8, -1)).reshape(n, c + 1, -1)
-    grid = values.new_zeros((n, c + 1, cells))
-    return grid.scatter_add(2, index.expand(n, c + 1, index.shape[-1]), src)
+    v = torch.cat([values, torch.ones_like(values[:, :1])], dim=1)
+    return v.reshape(n, c + 1, -1).transpose(1, 2)
+
+
+def splat_rows(rows: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, cells: int) -> torch.Tensor:
+    """Splat (Eq. 10) of :func:`value_rows` at :func:`corner_coords`: returns the grid as rows
+    (N·cells, C+1): Σ_j w_{p,j} r(j) per channel, then Σ_j w_{p,j}."""
+    n, c1 = rows.shape[0], rows.shape[2]
+    src = (rows.unsqueeze(1) * weight).reshape(-1)
+    # element index row·(C+1) + channel: one 1-D scatter_add = ONNX ScatterElements "add"
+    elements = (index.unsqueeze(1) * c1 + torch.arange(c1, device=index.device)).reshape(-1)
+    grid = rows.new_zeros((n * cells * c1,)).scatter_add(0, elements, src)
+    return grid.reshape(n * cells, c1)
 
 
 def splat(values: torch.Tensor, guide: torch.Tensor, rates: Sequence[int]) -> torch.Tensor:
@@ -194,47 +207,44 @@ def splat(values: torch.Tensor, guide: torch.Tensor, rates: Sequence[int]) -> to
     rates: (η_h, η_w, η_d).  Returns (N, C+1, D, Hg, Wg) (see :func:`grid_shape`): weighted
     sums of each channel, then the weight sum.  Differentiable w.r.t. values and guide.
     """
+    n, c = values.shape[0], values.shape[1]
     d, hg, wg = grid_shape(values.shape[-2], values.shape[-1], rates)
-    index, weight = corner_coords(guide, rates)
-    grid = splat_at(values, index, weight, d * hg * wg)
-    return grid.reshape(values.shape[0], values.shape[1] + 1, d, hg, wg)
+    index, weight, cells = corner_coords(guide, rates)
+    grid = splat_rows(value_rows(values), index, weight, cells)
+    return grid.reshape(n, d, hg, wg, c + 1).permute(0, 4, 1, 2, 3)
 
 
-def slice_grid_at(grid: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, h, w,
-                  normalization: str = "cell") -> torch.Tensor:
-    """Slicing (Eq. 13) at precomputed corners.
+def slice_rows(grid: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, n, h, w,
+               normalization: str = "cell") -> torch.Tensor:
+    """Slicing (Eq. 13) of a row grid (N·cells, C+1) from :func:`splat_rows` at the corners
+    of :func:`corner_coords` (the slicing guide's).
 
-    grid: (N, C+1, ...) from :func:`splat` (any trailing shape of D·Hg·Wg cells); index,
-    weight: :func:`corner_coords` of the slicing guide.  With S the weighted sums and W the
-    weight sum of a cell, "cell" reads M = S/W of the non-empty cells (W > 0), Eq. 10, and
-    divides by the sliced indicator Σ_p w_p [W_p > 0], Eq. 13; "homogeneous" returns
-    Σ_p w_p S_p / Σ_p w_p W_p.  Empty cells contribute to neither sum; where the denominator
-    is 0 the result is 0.  Returns (N, C, h, w).
+    With S the weighted sums and W the weight sum of a cell, "cell" reads M = S/W of the
+    non-empty cells (W > 0), Eq. 10, and divides by the sliced indicator Σ_p w_p [W_p > 0],
+    Eq. 13; "homogeneous" returns Σ_p w_p S_p / Σ_p w_p W_p.  Empty cells contribute to
+    neither sum; where the denominator is 0 the result is 0.  Returns (N, C, h, w).
     """
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
-    n, c1 = grid.shape[0], grid.shape[1]
-    flat = grid.reshape(n, c1, -1)
+    c = grid.shape[1] - 1
     if normalization == "cell":
-        wsum = flat[:, c1 - 1:]
-        occupied = (wsum > 0).to(flat.dtype)
-        flat = torch.cat([flat[:, :c1 - 1] * (occupied / wsum.clamp(min=1e-30)), occupied], dim=1)
-    # One 1-D Gather on the whole grid (index_select): onnx.reference's GatherElements is wrong
-    # for more than 64 cells on the gathered axis, and ORT's Gather is the simpler kernel.
-    cells = flat.shape[-1]
-    offsets = (torch.arange(n * c1, device=index.device) * cells).reshape(n, c1, 1)
-    taps = flat.reshape(-1).index_select(0, (index + offsets).reshape(-1)).reshape(n, c1, -1)
-    acc = (taps.reshape(n, c1, 8, -1) * weight.reshape(n, 1, 8, -1)).sum(dim=2)
-    out = acc[:, :c1 - 1] / acc[:, c1 - 1:].clamp(min=SLICE_FLOOR)
-    return out.reshape(n, c1 - 1, h, w)
+        wsum = grid[:, c:]
+        occupied = (wsum > 0).to(grid.dtype)
+        grid = torch.cat([grid[:, :c] * (occupied / wsum.clamp(min=1e-30)), occupied], dim=1)
+    taps = grid.index_select(0, index).reshape(n, 8, -1, c + 1)  # ONNX Gather of rows
+    acc = (taps * weight).sum(dim=1)  # (N, H·W, C+1)
+    out = acc[:, :, :c] / acc[:, :, c:].clamp(min=SLICE_FLOOR)
+    return out.transpose(1, 2).reshape(n, c, h, w)
 
 
 def slice_grid(grid: torch.Tensor, guide: torch.Tensor, rates: Sequence[int],
                normalization: str = "cell") -> torch.Tensor:
-    """Read a grid from :func:`splat` at ``guide`` (N, 1, H, W) with trilinear weights
-    (gather-based; see :func:`slice_grid_at`).  Returns (N, C, H, W)."""
-    index, weight = corner_coords(guide, rates)
-    return slice_grid_at(grid, index, weight, guide.shape[-2], guide.shape[-1], normalization)
+    """Read a grid (N, C+1, D, Hg, Wg) from :func:`splat` at ``guide`` (N, 1, H, W) with
+    trilinear weights (gather-based, :func:`slice_rows`).  Returns (N, C, H, W)."""
+    n, c1 = grid.shape[0], grid.shape[1]
+    index, weight, _ = corner_coords(guide, rates)
+    rows = grid.permute(0, 2, 3, 4, 1).reshape(-1, c1)
+    return slice_rows(rows, index, weight, n, guide.shape[-2], guide.shape[-1], normalization)
 
 
 def luminance(color: torch.Tensor) -> torch.Tensor:
@@ -360,19 +370,18 @@ class GuideStage(nn.Module):
 
 class SplatStage(nn.Module):
     """Stage "splat": per scale, the corners of every pixel at its guide and the grid.
-    Returns ([grid_s (N, 4, cells_s)], [(index_s, weight_s)])."""
+    Returns ([grid_s as rows (N·cells_s, 4)], [(index_s, weight_s)])."""
 
     def __init__(self, params: NBGParams):
         super().__init__()
         self.rates = [params.scale_rates(s) for s in range(params.grids)]
 
     def forward(self, irr, guides):
-        h, w = irr.shape[-2], irr.shape[-1]
+        rows = value_rows(irr)
         grids, coords = [], []
         for rates, guide in zip(self.rates, guides):
-            d, hg, wg = grid_shape(h, w, rates)
-            index, weight = corner_coords(guide, rates)
-            grids.append(splat_at(irr, index, weight, d * hg * wg))
+            index, weight, cells = corner_coords(guide, rates)
+            grids.append(splat_rows(rows, index, weight, cells))
             coords.append((index, weight))
         return grids, coords
 
@@ -386,10 +395,10 @@ class SliceStage(nn.Module):
         self.normalization = params.normalization
 
     def forward(self, grids, coords, weights, albedo):
-        h, w = albedo.shape[-2], albedo.shape[-1]
+        n, h, w = albedo.shape[0], albedo.shape[-2], albedo.shape[-1]
         out = None
         for s, (grid, (index, weight)) in enumerate(zip(grids, coords)):
-            r = slice_grid_at(grid, index, weight, h, w, self.normalization)
+            r = slice_rows(grid, index, weight, n, h, w, self.normalization)
             if weights:
                 r = r * weights[s]
             out = r if out is None else out + r
