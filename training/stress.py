@@ -13,8 +13,9 @@ from the perturbed per-sample data with :func:`runtime.frames.pixel_means`):
 * ``nan-inf``: as many samples per kind get NaN radiance, +Inf radiance, or NaN in every
   feature (then the pixel's motion vector is NaN as well);
 * ``cut``: the data set's sequences played back to back as one stream, each start flagged
-  ``meta["cut"]``; ``cut-unflagged``: the same without the flag, so only a method's own
-  history test can notice (scored on the frames after a cut);
+  ``meta["cut"]``; ``cut-unflagged``: the same without the flag and with the ``valid`` layer
+  set to 1 on the frame after the cut (its motion vectors are 0), so only a method's own
+  history test can notice (both scored on the frames after the first cut);
 * ``dark`` / ``bright``: colour, per-sample radiance and reference times :data:`EXPOSURES`;
   scored after dividing the output (and reference) by the same factor, so a method that
   scales with its input loses nothing;
@@ -63,6 +64,8 @@ NONFINITE_DENSITY = 1e-3
 EXPOSURES = {"dark": 1e-3, "bright": 1e3}
 #: A method fails a case when it loses this many dB more than the noisy input does (see judge).
 FAIL_MARGIN_DB = 3.0
+#: stress.md lists losses of more than this many dB beyond the noisy input's that are not failures.
+NOTE_MARGIN_DB = 1.0
 #: Scene seeds of the rendered stress sets: RENDER_SEED * 100000 + i (training uses 1, test 2).
 RENDER_SEED = 5
 FAST_CAMERA = 4.0
@@ -202,13 +205,15 @@ class Case:
     clean: str
     aligned: bool
     skipped: str | None = None
+    vs: str | None = None  # the counterpart's set name when the run is shared ("base" is "clean")
 
 
-def _keys(seqs, score=lambda i: True):
-    return [[(i, t) if score(i) else None for t in range(len(s))] for i, s in enumerate(seqs)]
+def _keys(seqs):
+    """Every frame scored, keyed (sequence, frame)."""
+    return [[(i, t) for t in range(len(s))] for i, s in enumerate(seqs)]
 
 
-def load_set(root: str, spp: int | None = None, limit: tuple[int, int] | None = None) -> list[list[Frame]]:
+def load_set(root: str, limit: tuple[int, int] | None = None) -> list[list[Frame]]:
     """Frames of every sequence under ``root`` (at most ``limit`` = (sequences, frames))."""
     from training.evaluate import sequences
 
@@ -249,11 +254,13 @@ def perturbation_runs(data: list[list[Frame]], spp: int, seed: int) -> tuple[dic
     _strip(clean)
     if len(clean) >= 2:
         for name, flagged in (("cut", True), ("cut-unflagged", False)):
-            stream = [replace(f, meta=dict(f.meta, cut=flagged and t == 0)) for s in clean for t, f in enumerate(s)]
+            stream = [replace(f, meta=dict(f.meta, cut=flagged and t == 0),
+                              valid=f.valid if flagged or t > 0 or f.valid is None else np.ones_like(f.valid))
+                      for s in clean for t, f in enumerate(s)]
             keys = [[(i, t) if i > 0 else None for i, s in enumerate(clean) for t in range(len(s))]]
             add(name, [stream], keys)
             cases.append(Case(name, "sequences back to back as one stream, the first frame after each cut "
-                              + ("flagged `meta['cut']`" if flagged else "NOT flagged (its motion vectors are 0)"),
+                              + ("flagged `meta['cut']`" if flagged else "NOT flagged: motion vectors 0, `valid` 1 (only a history test can tell)"),
                               name, "clean", True))
     else:
         for name in ("cut", "cut-unflagged"):
@@ -466,7 +473,7 @@ def compose(rows: list[tuple[str, list]], labels: list[str], path: str, zoom: in
     Panels are enlarged ``zoom`` x (nearest).  Labels need matplotlib; without it, none."""
     ph, pw = rows[0][1][0].shape[:2]
     ph, pw = ph * zoom, pw * zoom
-    gap, top, left = 2, 14, 40
+    gap, top, left = 2, 14, 72
     width = left + len(labels) * (pw + gap)
     height = top + len(rows) * (ph + gap)
     canvas = np.ones((height, width, 3))
@@ -529,7 +536,7 @@ def crop_case(case: Case, runs: dict, results: dict, table: dict, methods: list[
         panels.append(_display(_refs(r)[key][sl], r.scale, (s, s, 3)))
         return panels
 
-    rows = [(case.name[:7], row(run, case.run))]
+    rows = [(case.name, row(run, case.run))]
     if case.aligned:
         rows.append(("clean", row(clean, case.clean)))
     compose(rows, ["input", *methods, "reference"], path, zoom)
@@ -581,7 +588,8 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
             seqs = _strip([[at_spp(f, spp) for f in s] for s in load_set(folder, limit=limit)])
             runs[name] = Run(name, seqs, _keys(seqs))
         cases.append(Case(case_name, what, alias.get(set_name, set_name), alias.get(clean_name, clean_name),
-                          False, skipped=f"set not rendered in {render_dir} (--no-render)" if missing else None))
+                          False, skipped=f"set not rendered in {render_dir} (--no-render)" if missing else None,
+                          vs=clean_name))
 
     # methods
     loaded, names = {}, []
@@ -673,7 +681,7 @@ def write_csv(summary: dict, path: Path) -> None:
             for m in summary["methods"]:
                 r = summary["table"][(case.name, m)]
                 f = lambda v: "" if v is None else (f"{v:.4f}" if isinstance(v, float) else v)
-                w.writerow([case.name, m, case.clean, f(r.get("psnr_clean")), f(r.get("psnr_case")),
+                w.writerow([case.name, m, case.vs or case.clean, f(r.get("psnr_clean")), f(r.get("psnr_case")),
                             f(r.get("delta_db")), f(r.get("relmse_clean")), f(r.get("relmse_case")),
                             f(r.get("nonfinite")), f(r.get("resets")), r.get("error") or "",
                             r.get("failed") or "", r.get("skipped") or ""])
@@ -711,8 +719,18 @@ def markdown(summary: dict, out: Path) -> str:
     L.append(f"| *clean, absolute dB* | - | {summary['clean_frames']} | "
              + " | ".join("-" if clean[m] is None else f"{clean[m]['psnr']:.2f}" for m in names) + " |")
     for case in summary["cases"]:
-        L.append(f"| {case.name} | {case.clean} | {summary['frames'].get(case.name, '-')} | "
+        L.append(f"| {case.name} | {case.vs or case.clean} | {summary['frames'].get(case.name, '-')} | "
                  + " | ".join(_cell(table[(case.name, m)]) for m in names) + " |")
+    L += ["", "relMSE on the case / relMSE on the clean counterpart (1: no change):", "",
+          "| case | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    for case in summary["cases"]:
+        if case.skipped:
+            continue
+        cells = []
+        for m in names:
+            r = table[(case.name, m)]
+            cells.append("-" if r.get("error") or not r.get("relmse_clean") else f"{r['relmse_case'] / r['relmse_clean']:.2f}")
+        L.append(f"| {case.name} | " + " | ".join(cells) + " |")
     L += ["", "## Cases", "", "| case | what | clean counterpart | worst region (crop) |", "|---|---|---|---|"]
     for case in summary["cases"]:
         c = summary["crops"].get(case.name)
@@ -721,7 +739,7 @@ def markdown(summary: dict, out: Path) -> str:
             crop = (f"[{Path(c['path']).name}]({_rel(c['path'], out)}) ({c['method']}, sequence {c['frame'][0]} "
                     f"frame {c['frame'][1]}, x {c['x']} y {c['y']}, {c['size']} px)")
         L.append(f"| {case.name} | {case.what}{' (skipped: ' + case.skipped + ')' if case.skipped else ''} | "
-                 f"{case.clean} | {crop} |")
+                 f"{case.vs or case.clean} | {crop} |")
     L += ["", "Crops: columns are the input, each method and the reference, tonemapped (ANF Eq. 15) "
           "after undoing the exposure; non-finite pixels are magenta. The window (size above, "
           "enlarged with nearest neighbours) is where the method that lost the most beyond the noisy input "
@@ -741,6 +759,18 @@ def markdown(summary: dict, out: Path) -> str:
                 L.append(f"- **{m}**: " + "; ".join(f"{c} ({why})" for c, why in mine))
     else:
         L.append("None.")
+    notes = []
+    for c in summary["cases"]:
+        nd = table.get((c.name, "noisy"), {}).get("delta_db")
+        for m in names:
+            r = table[(c.name, m)]
+            if m == "noisy" or r.get("failed") or r.get("delta_db") is None or nd is None:
+                continue
+            if r["delta_db"] - nd < -NOTE_MARGIN_DB:
+                notes.append(f"{m} on {c.name} ({r['delta_db'] - nd:+.1f} dB)")
+    if notes:
+        L += ["", f"Losses of more than {NOTE_MARGIN_DB:g} dB beyond the noisy input's that are not failures: "
+              + "; ".join(notes) + "."]
     errors = {(c.name, m): table[(c.name, m)]["error"] for c in summary["cases"] for m in names
               if table[(c.name, m)].get("error")}
     if errors:
@@ -775,7 +805,25 @@ def markdown(summary: dict, out: Path) -> str:
         L += ["No rendered sets (--data only).", ""]
     L += [f"Perturbation seeds: numpy `default_rng([{summary['seed']}, case, sequence, frame])`. "
           "Render seconds are the renderer's own (manifest), on this machine.", ""]
+    code = _code_version()
+    if code:
+        L += [f"Code: {code}.", ""]
     return "\n".join(L)
+
+
+def _code_version() -> str | None:
+    """"commit abc1234" plus the runtime/method files that differ from it, or None without git."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                              text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "runtime", "models", "training/stress.py"],
+                               cwd=REPO, capture_output=True, text=True, timeout=10).stdout.split("\n")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if not head:
+        return None
+    changed = sorted(line[3:] for line in dirty if line.strip())
+    return f"commit {head}" + (f" with uncommitted {', '.join(changed)}" if changed else "")
 
 
 def _rel(path: str, base: Path | None = None) -> str:
