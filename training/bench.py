@@ -326,7 +326,7 @@ def quality_part(models, builtins, stills, data, quick, threads, log):
         seqs = read_sequences(folder, stills=(kind == "stills"))
         have = stored_spp(seqs)
         use = [s for s in spps if s <= have]
-        testsets[kind] = {"folder": str(folder), "sequences": len(seqs),
+        testsets[kind] = {"folder": _rel(folder), "sequences": len(seqs),
                           "frames": sum(len(s) for s in seqs), "size": "x".join(map(str, seqs[0][0].size[::-1])),
                           "stored_spp": have, "spp": use,
                           "ref_spp": seqs[0][0].meta.get("ref_spp"),
@@ -470,10 +470,9 @@ def write_flops_csv(res, path):
                              "gfma": v["fmas"] / 1e9, "params": c.params if st == timing.GRAPH else None,
                              "graph_ms": ms, "gflop_per_s": v["flops"] / 1e9 / (ms / 1e3) if ms else None})
         for size, c in res["flops"]["oidn"].items():
-            for q in ("high", "fast"):
+            for q in ("high",):   # quality fast: not counted (see bench.md)
                 ms = res["frame_ms"].get((f"oidn-{q}", size))
-                wr.writerow({"method": f"oidn-{q}" + ("" if q == "high" else " (if the published U-Net)"),
-                             "size": size, "stage": timing.TOTAL, "gflop": c["flops"] / 1e9,
+                wr.writerow({"method": f"oidn-{q}", "size": size, "stage": timing.TOTAL, "gflop": c["flops"] / 1e9,
                              "gfma": c["fmas"] / 1e9, "params": c["params"], "graph_ms": ms,
                              "gflop_per_s": c["flops"] / 1e9 / (ms / 1e3) if ms else None})
 
@@ -495,12 +494,12 @@ def write_charts(res, out: Path) -> None:
     front = pareto_front(pts)
     fig, ax = plt.subplots(figsize=(8, 5.5))
     timed = {m: p for m, p in pts.items() if p[0] > 0}
-    xmin = min((p[0] for p in timed.values()), default=1.0) / 3
-    xmax = max((p[0] for p in timed.values()), default=10.0) * 3
-    for m, (t, q) in pts.items():
+    xmin = min((p[0] for p in timed.values()), default=1.0) / 1.6
+    xmax = max((p[0] for p in timed.values()), default=10.0) * 1.6
+    for i, (m, (t, q)) in enumerate(sorted(pts.items(), key=lambda kv: kv[1][0])):
         if t > 0:
             ax.scatter([t], [q], s=40, zorder=3, color="C3" if m in front else "C0")
-            ax.annotate(m, (t, q), textcoords="offset points", xytext=(6, 4), fontsize=9)
+            ax.annotate(m, (t, q), textcoords="offset points", xytext=(6, 5 if i % 2 else -13), fontsize=9)
         else:
             ax.axhline(q, color="grey", ls=":", lw=1)
             ax.annotate(f"{m} (0 ms)", (xmin, q), textcoords="offset points", xytext=(4, 4),
@@ -512,6 +511,7 @@ def write_charts(res, out: Path) -> None:
         ax.legend(loc="lower right")
     ax.set_xscale("log")
     ax.set_xlim(xmin, xmax)
+    ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
     ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel(f"ms per frame at {size} (log scale)")
@@ -574,7 +574,9 @@ def markdown(res) -> str:
     L = ["# mcdenoise bench", "",
          f"Written by `{res['command']}` in {res['seconds']:.0f} s. Machine: {res['device']}, "
          f"{res['threads']} threads. Times: median of {res['frames']} frames after {res['warmup']} "
-         "warm-up frames of a synthetic sequence with history, every number from this one run.", ""]
+         "warm-up frames of a synthetic sequence with history, every number from this one run. "
+         "onnxruntime and torch use the threads stated; Open Image Denoise runs its own thread pool "
+         "(every core); SVGF is numpy.", ""]
     order = _method_order(res)
     if "quality" in res:
         ts = res["testsets"]
@@ -645,24 +647,26 @@ def markdown(res) -> str:
         L.append(f"| {name} | {cs[sizes[0]].params:,} | " + " | ".join(f"{cs[s].flops / 1e9:.3f}" for s in fsizes)
                  + " | " + " | ".join(_fmt(r, ".1f") for r in rates) + f" | {_fmt(pct, '.0f')} |")
     oc = res["flops"]["oidn"]
-    for qn in ("oidn-high", "oidn-fast"):
-        if qn not in res["builtins"]:
-            continue
+    if "oidn-high" in res["builtins"]:
         rates = []
         for s in sizes:
-            ms = res["frame_ms"].get((qn, s))
+            ms = res["frame_ms"].get(("oidn-high", s))
             rates.append(oc[s]["flops"] / 1e9 / (ms / 1e3) if ms else None)
         pct = (100 * rates[-1] / peak["gflops"]) if rates[-1] and peak["gflops"] else None
-        L.append(f"| {qn}{'' if qn == 'oidn-high' else ' (see note)'} | {oc[sizes[0]]['params']:,} | "
+        L.append(f"| oidn-high | {oc[sizes[0]]['params']:,} | "
                  + " | ".join(f"{oc[s]['flops'] / 1e9:.3f}" for s in fsizes) + " | "
                  + " | ".join(_fmt(r, ".1f") for r in rates) + f" | {_fmt(pct, '.0f')} |")
-    L += ["", "Open Image Denoise: the U-Net of its published training code (`training/model.py`, "
-          "16 3x3 convolutions, 32-112 channels, 4 levels; 9 input channels for colour + albedo + "
-          "normal), padded to multiples of 16; its per-frame ms is the whole `pyoidn.denoise` call "
-          "(input/output conversion and autoexposure included). OIDN 2 picks its network per quality "
-          "from the weights it ships; that quality `fast` uses this same U-Net is not confirmed by the "
-          "published code we read, so its row is the count *if* it does. SVGF and the noisy input: "
-          "not counted (no ONNX graph).", ""]
+    if "oidn-fast" in res["builtins"]:
+        L.append("| oidn-fast | not counted | " + " | ".join("not counted" for s in fsizes) + " | "
+                 + " | ".join("-" for s in sizes) + " | - |")
+    L += ["", "Open Image Denoise, quality high: the U-Net of its published training code "
+          "(RenderKit/oidn `training/model.py`, the layer sequence `core/unet_filter.cpp` builds: 16 "
+          "3x3 convolutions, 32-112 channels, 4 pooling levels; 9 input channels for colour + albedo + "
+          "normal), on the image padded to multiples of 16; its ms is the whole `pyoidn.denoise` call "
+          "(input/output conversion and autoexposure included), so its GFLOP/s is a lower bound. "
+          "Quality fast: not counted; the published code we read does not say which network or "
+          "precision pyoidn 2.5's `fast` runs" + _oidn_fast_note(res, sizes, oc, peak) + ". "
+          "SVGF and the noisy input: not counted (no ONNX graph).", ""]
     # per-model tables beside the paper
     L += ["## Per-stage time beside each paper's table", "",
           "onnxruntime graph stages are profiler kernel sums; driver stages (preprocess, reproject, "
@@ -709,6 +713,27 @@ def markdown(res) -> str:
     if ratios:
         L += ["", "Against Open Image Denoise (quality high, same run):", ""] + ratios
     return "\n".join(L) + "\n"
+
+
+def _oidn_fast_note(res, sizes, oc, peak) -> str:
+    """Whether this run's oidn-fast time rules out the high-quality U-Net in fp32."""
+    ms = res["frame_ms"].get(("oidn-fast", sizes[-1]))
+    if not ms or not peak["gflops"]:
+        return ""
+    rate = oc[sizes[-1]]["flops"] / 1e9 / (ms / 1e3)
+    if rate > peak["gflops"]:
+        return (f", and its time here ({ms:.0f} ms at {sizes[-1]}) would mean {rate:.0f} GFLOP/s for "
+                f"that U-Net, above the fp32 peak: a smaller network or a lower precision")
+    return ""
+
+
+def _rel(path) -> str:
+    """``path`` relative to the repository when inside it (for the written files)."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(REPO))
+    except ValueError:
+        return str(path)
 
 
 def _seeds(seeds) -> str:
