@@ -33,6 +33,7 @@ is one multiply-add and counts as 2 FLOPs):
   input element).
 * ``Resize``: nearest 0; linear / cubic 2 * 2^k - 1 per output element for k resized axes (a
   2^k-tap weighted sum).  ``GridSample``: bilinear 7 per output element, nearest 0.
+* ``ScatterND`` / ``ScatterElements``: 0 without a reduction, else 1 per update element.
 * Data movement and shape ops (:data:`FREE`: Slice, Concat, Reshape, Transpose, Gather, Pad,
   Cast, Shape...): 0.
 * Anything else is *not counted*: listed in :attr:`FlopCount.uncounted`, never silently 0.
@@ -66,7 +67,7 @@ ELEMENTWISE = frozenset({
 FREE = frozenset({
     "Slice", "Concat", "Reshape", "Transpose", "Gather", "GatherElements", "GatherND", "Pad",
     "Cast", "CastLike", "Shape", "Size", "Identity", "Unsqueeze", "Squeeze", "Flatten", "Expand",
-    "Split", "Constant", "ConstantOfShape", "Range", "Tile", "ScatterND", "ScatterElements",
+    "Split", "Constant", "ConstantOfShape", "Range", "Tile",
     "DepthToSpace", "SpaceToDepth", "Dropout", "NonZero", "TopK", "ArgMax", "ArgMin", "Trilu",
     "EyeLike", "OneHot",
 })
@@ -179,6 +180,10 @@ def node_cost(node, shapes: dict[str, tuple]) -> tuple[int, int] | None:
 
     if op in FREE:
         return 0, 0
+    if op in ("ScatterND", "ScatterElements"):
+        red = _attrs(node).get("reduction", b"none")
+        red = red.decode() if isinstance(red, bytes) else red
+        return (0, 0) if red == "none" else (_n(shape(node.input[2])), 0)
     out = shape(node.output[0])
     n_out = _n(out)
     a = _attrs(node)
