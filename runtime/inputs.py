@@ -48,13 +48,21 @@ class SanitizeReport:
         return ", ".join(parts) if parts else "clean"
 
 
+#: What replaces a non-finite value, per layer (0 for layers not listed).  Albedo gets 1, the
+#: neutral value of albedo demodulation: with 0 a pixel whose albedo is broken would be
+#: re-modulated to black by every demodulating method (WSKPN, NBG, SVGF); with 1 it keeps its
+#: filtered radiance.
+NONFINITE_FILL = {"albedo": 1.0}
+
+
 def sanitize_array(arr: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
-    """Copy of ``arr`` with non-finite -> 0 and, for radiance, negatives -> 0 and > max clamped."""
+    """Copy of ``arr`` with non-finite values -> :data:`NONFINITE_FILL` (default 0) and, for
+    radiance, negatives -> 0 and values above :data:`MAX_RADIANCE` clamped."""
     out = np.array(arr, dtype=np.float32, copy=True)
     bad = ~np.isfinite(out)
     if bad.any():
         report.nonfinite[name] = report.nonfinite.get(name, 0) + int(bad.sum())
-        out[bad] = 0.0
+        out[bad] = NONFINITE_FILL.get(name, 0.0)
     if radiance:
         neg = out < 0
         if neg.any():

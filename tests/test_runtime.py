@@ -4,6 +4,8 @@ Uses a randomly initialised (seeded) wskpn-3 exported to ONNX: behaviour, not qu
 under test here.  Parity: the driver (numpy reprojection + onnxruntime) and the training
 unroll (torch reprojection + torch model) give the same output for the same 2-frame sequence.
 """
+import os
+
 import numpy as np
 import onnx
 import pytest
@@ -209,3 +211,14 @@ def test_negative_model_output_is_clamped_and_counted(tmp_path):
     out = den(np.full((4, 5, 3), 2.0, np.float32))
     assert np.all(out == 0) and den.report.negative_output_values == 60
     assert any("negative" in m for m in msgs)
+
+
+def test_nonfinite_albedo_does_not_black_out_the_pixel():
+    # Demodulating models re-modulate by albedo: a broken albedo must not become 0 (black).
+    shipped = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "models", "wskpn-3.onnx")
+    clean = Denoiser.load(shipped, log=lambda m: None)(_frame(0, 48, 40))
+    broken = _frame(0, 48, 40)
+    broken.albedo[10, 10] = np.nan
+    out = Denoiser.load(shipped, log=lambda m: None)(broken)
+    assert np.isfinite(out).all()
+    assert (out[10, 10] > 0.3 * clean[10, 10]).all(), (out[10, 10], clean[10, 10])
