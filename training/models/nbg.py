@@ -30,7 +30,7 @@ unit support needs at the last pixel.)  Stored (N, C+1, D, Hg, Wg): C value chan
 weight sum Σ_j w_{p,j} of Eq. 10.
 
 Inside the stages a grid is stored as rows (N·cells, C+1), channels last.  Splatting adds the
-8 corners × (C+1) channels of every pixel with one 1-D ``scatter_add`` (ONNX ScatterElements
+8 corners × (C+1) channels of every pixel with one 1-D ``scatter_add`` (:func:`splat_corners`) (ONNX ScatterElements
 with reduction "add", opset >= 16).  Not used, because wrong: torch's exports of ``index_add``
 and ``index_put_(accumulate=True)`` (a ScatterND *without* reduction), and ONNX ScatterND with
 reduction "add", which onnxruntime runs in parallel with lost updates where indices
@@ -145,15 +145,16 @@ def grid_shape(h, w, rates: Sequence[int]):
     return int(GUIDE_RANGE // sd) + 2, (h - 1) // sh + 2, (w - 1) // sw + 2
 
 
-def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
-    """Trilinear corners of every pixel in the grid of :func:`grid_shape`.
+def corners(guide: torch.Tensor, rates: Sequence[int]):
+    """Trilinear corners of every pixel in the grid of :func:`grid_shape`, per corner.
 
     guide: (N, 1, H, W) in [0, 1] (values outside are clamped to the grid's range cells).
-    Returns (index, weight, cells), cells = D·Hg·Wg per image:
-    index: (N·8·H·W,) int64 rows of the batch's grid stored as rows (N·cells, C+1) (cell
-    p = d·Hg·Wg + y·Wg + x of image n is row n·cells + p), ordered (image, corner, pixel);
-    weight: (N, 8, H·W, 1) the tent weights T(g(j) − p) (Eq. 9, 11) in the guide's dtype, summing
-    to 1 over a pixel's 8 corners.  Differentiable w.r.t. ``guide`` through the range weights.
+    The batch's grids are stored as rows (N·cells, C+1), cells = D·Hg·Wg: cell
+    p = d·Hg·Wg + y·Wg + x of image n is row n·cells + p.  Returns (base, offsets, weights,
+    cells): base (N, 1, H, W) int64, the row of each pixel's lowest corner; offsets: 8 row
+    offsets (ints, traced for dynamic sizes) of the corners (dz, dy, dx) in {0, 1}³; weights:
+    8 tensors (N, 1, H, W), the tent weights T(g(j) − p) (Eq. 9, 11) in the guide's dtype,
+    summing to 1 per pixel.  Differentiable w.r.t. ``guide`` through the range weights.
     """
     n, _, h, w = guide.shape
     sh, sw, sd = rates
@@ -170,33 +171,43 @@ def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
     z0 = torch.floor(z).clamp(0.0, d - 2.0).detach()
     fz = z - z0
     image = (torch.arange(n, device=dev) * cells).view(n, 1, 1, 1)
-    base = (z0.to(torch.int64) * hg + y0) * wg + x0 + image  # (N, 1, H, W)
-    plane = hg * wg
-    idx, wts = [], []
-    for dz, wz in ((0, 1.0 - fz), (plane, fz)):
+    base = (z0.to(torch.int64) * hg + y0) * wg + x0 + image
+    offsets, weights = [], []
+    for dz, wz in ((0, 1.0 - fz), (hg * wg, fz)):
         for dy, wy in ((0, 1.0 - fy), (wg, fy)):
             wzy = wz * wy
             for dx, wx in ((0, 1.0 - fx), (1, fx)):
-                idx.append(base + (dz + dy + dx))
-                wts.append(wzy * wx)
-    return torch.cat(idx, dim=1).reshape(-1), torch.cat(wts, dim=1).reshape(n, 8, h * w, 1), cells
+                offsets.append(dz + dy + dx)
+                weights.append(wzy * wx)
+    return base, offsets, weights, cells
 
 
-def value_rows(values: torch.Tensor) -> torch.Tensor:
-    """(N, C, H, W) -> (N, H·W, C+1): the channels last, then the homogeneous channel 1."""
+def corner_coords(guide: torch.Tensor, rates: Sequence[int]):
+    """:func:`corners` gathered for slicing: (index, weight, cells) with index (N·8·H·W,)
+    int64 grid rows ordered (image, corner, pixel) and weight (N, 8, H·W, 1)."""
+    n, _, h, w = guide.shape
+    base, offsets, weights, cells = corners(guide, rates)
+    index = torch.cat([base + o for o in offsets], dim=1).reshape(-1)
+    return index, torch.cat(weights, dim=1).reshape(n, 8, h * w, 1), cells
+
+
+def splat_corners(values: torch.Tensor, base: torch.Tensor, offsets, weights, cells) -> torch.Tensor:
+    """Splat (Eq. 10) of values (N, C, H, W) at :func:`corners`: the grid as rows (N·cells,
+    C+1), Σ_j w_{p,j} r(j) per channel, then Σ_j w_{p,j}.
+
+    One 1-D ``scatter_add`` of the 8·(C+1) products per pixel (ONNX ScatterElements "add") at
+    element index row·(C+1) + channel; products and indices are built per corner and channel
+    with same-shape ops (onnxruntime runs broadcasting multiplies nearly single-threaded)."""
     n, c = values.shape[0], values.shape[1]
-    v = torch.cat([values, torch.ones_like(values[:, :1])], dim=1)
-    return v.reshape(n, c + 1, -1).transpose(1, 2)
-
-
-def splat_rows(rows: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, cells: int) -> torch.Tensor:
-    """Splat (Eq. 10) of :func:`value_rows` at :func:`corner_coords`: returns the grid as rows
-    (N·cells, C+1): Σ_j w_{p,j} r(j) per channel, then Σ_j w_{p,j}."""
-    n, c1 = rows.shape[0], rows.shape[2]
-    src = (rows.unsqueeze(1) * weight).reshape(-1)
-    # element index row·(C+1) + channel: one 1-D scatter_add = ONNX ScatterElements "add"
-    elements = (index.unsqueeze(1) * c1 + torch.arange(c1, device=index.device)).reshape(-1)
-    grid = rows.new_zeros((n * cells * c1,)).scatter_add(0, elements, src)
+    c1 = c + 1
+    chans = [values[:, i:i + 1] for i in range(c)]
+    base = base * c1
+    src, elements = [], []
+    for o, wk in zip(offsets, weights):
+        src += [wk * v for v in chans] + [wk]
+        elements += [base + (o * c1 + i) for i in range(c1)]
+    grid = values.new_zeros((n * cells * c1,))
+    grid = grid.scatter_add(0, torch.cat(elements, dim=1).reshape(-1), torch.cat(src, dim=1).reshape(-1))
     return grid.reshape(n * cells, c1)
 
 
@@ -209,14 +220,13 @@ def splat(values: torch.Tensor, guide: torch.Tensor, rates: Sequence[int]) -> to
     """
     n, c = values.shape[0], values.shape[1]
     d, hg, wg = grid_shape(values.shape[-2], values.shape[-1], rates)
-    index, weight, cells = corner_coords(guide, rates)
-    grid = splat_rows(value_rows(values), index, weight, cells)
+    grid = splat_corners(values, *corners(guide, rates))
     return grid.reshape(n, d, hg, wg, c + 1).permute(0, 4, 1, 2, 3)
 
 
 def slice_rows(grid: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, n, h, w,
                normalization: str = "cell") -> torch.Tensor:
-    """Slicing (Eq. 13) of a row grid (N·cells, C+1) from :func:`splat_rows` at the corners
+    """Slicing (Eq. 13) of a row grid (N·cells, C+1) from :func:`splat_corners` at the corners
     of :func:`corner_coords` (the slicing guide's).
 
     With S the weighted sums and W the weight sum of a cell, "cell" reads M = S/W of the
@@ -377,12 +387,13 @@ class SplatStage(nn.Module):
         self.rates = [params.scale_rates(s) for s in range(params.grids)]
 
     def forward(self, irr, guides):
-        rows = value_rows(irr)
         grids, coords = [], []
         for rates, guide in zip(self.rates, guides):
-            index, weight, cells = corner_coords(guide, rates)
-            grids.append(splat_rows(rows, index, weight, cells))
-            coords.append((index, weight))
+            base, offsets, weights, cells = corners(guide, rates)
+            grids.append(splat_corners(irr, base, offsets, weights, cells))
+            n, h, w = guide.shape[0], guide.shape[-2], guide.shape[-1]
+            coords.append((torch.cat([base + o for o in offsets], dim=1).reshape(-1),
+                           torch.cat(weights, dim=1).reshape(n, 8, h * w, 1)))
         return grids, coords
 
 
