@@ -54,7 +54,7 @@ class OIDN:
     huge input is what users get, so the measuring commands feed it the frame as is.
     """
 
-    def __init__(self, quality: str = "high"):
+    def __init__(self, quality: str = "high", device: str = "cpu"):
         try:
             import pyoidn
         except ImportError as e:
@@ -62,8 +62,11 @@ class OIDN:
                              "(or the project's [bench] extra)") from e
         if quality not in ("high", "balanced", "fast"):
             raise ValueError(f"OIDN quality must be high, balanced or fast, got {quality!r}")
+        if device not in ("cpu", "cuda"):
+            raise ValueError(f"OIDN device must be cpu or cuda, got {device!r}")
         self._oidn = pyoidn
         self.quality = quality
+        self.device = device
         self.name = f"oidn-{quality}"
 
     def __call__(self, frame) -> np.ndarray:
@@ -75,8 +78,16 @@ class OIDN:
             aux["normal"] = np.ascontiguousarray(fr.normal, dtype=np.float32)
         if "normal" in aux and "albedo" not in aux:
             aux.pop("normal")  # OIDN accepts a normal only together with an albedo
-        out = self._oidn.denoise(np.ascontiguousarray(fr.color, dtype=np.float32), hdr=True,
-                                 quality=self.quality, **aux)
+        color = np.ascontiguousarray(fr.color, dtype=np.float32)
+        if self.device == "cuda":
+            # pyoidn runs its CUDA device on torch CUDA tensors; the copies in and out are
+            # part of the cost, as they are for the onnxruntime driver.
+            import torch
+
+            out = self._oidn.denoise(torch.from_numpy(color).cuda(), hdr=True, quality=self.quality,
+                                     **{k: torch.from_numpy(v).cuda() for k, v in aux.items()})
+            return out.cpu().numpy().astype(np.float32, copy=False)
+        out = self._oidn.denoise(color, hdr=True, quality=self.quality, **aux)
         return np.asarray(out, dtype=np.float32)
 
     def reset(self) -> None:
@@ -101,14 +112,25 @@ class ONNXModel:
         self.denoiser.reset()
 
 
-def load_method(name: str, threads: int = 0, providers=None, profile: bool = False, log=None):
-    """A method object for ``name``: an ``.onnx`` path or one of :data:`BUILTIN`."""
+#: onnxruntime execution providers per ``device`` argument.
+PROVIDERS = {"cpu": ["CPUExecutionProvider"], "cuda": ["CUDAExecutionProvider", "CPUExecutionProvider"]}
+
+
+def load_method(name: str, threads: int = 0, providers=None, profile: bool = False, log=None,
+                device: str = "cpu"):
+    """A method object for ``name``: an ``.onnx`` path or one of :data:`BUILTIN`.
+
+    ``device`` ("cpu" or "cuda") picks onnxruntime's execution provider (unless ``providers``
+    is given) and Open Image Denoise's device; SVGF and the noisy input always run on the CPU.
+    """
+    if device not in PROVIDERS:
+        raise ValueError(f"device must be one of {', '.join(PROVIDERS)}, got {device!r}")
     if name.endswith(".onnx") or os.path.sep in name:
-        return ONNXModel(name, threads=threads, providers=providers, profile=profile, log=log)
+        return ONNXModel(name, threads=threads, providers=providers or PROVIDERS[device], profile=profile, log=log)
     if name == "noisy":
         return Noisy()
     if name.startswith("oidn-"):
-        return OIDN(name[len("oidn-"):])
+        return OIDN(name[len("oidn-"):], device=device)
     if name == "svgf":
         from runtime.svgf import SVGF
 

@@ -132,25 +132,36 @@ def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
             "motion": motion, "meta": {}}
 
 
-def bench_onnx(path: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0):
-    """(driver, {stage: median ms}) of the runtime driver on the synthetic sequence."""
-    from runtime.denoiser import Denoiser
+def bench_onnx(path: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0,
+               device: str = "cpu"):
+    """(driver, {stage: median ms}) of the runtime driver on the synthetic sequence.
 
-    den = Denoiser.load(path, threads=threads, profile=True, log=lambda m: None)
+    On ``device="cuda"`` (onnxruntime's CUDA provider) the graph is not profiled: CUDA kernels
+    run asynchronously, so per-node times would be launch times; the graph row is the run()
+    call, which returns only when the outputs are back on the host."""
+    from runtime.denoiser import Denoiser
+    from runtime.methods import PROVIDERS
+
+    den = Denoiser.load(path, threads=threads, providers=PROVIDERS[device], profile=device == "cpu",
+                        log=lambda m: None)
+    if device == "cuda" and den.session.get_providers()[0] != "CUDAExecutionProvider":
+        raise ValueError(f"{path}: onnxruntime has no CUDA provider here (providers: "
+                           f"{', '.join(den.session.get_providers())}); install onnxruntime-gpu")
     for t in range(warmup + frames):
         den(synthetic_frame(w, h, t, seed))
     rows = den.stage_times()[warmup:]
     return den, timing.medians(rows)
 
 
-def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0):
+def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0,
+                 device: str = "cpu"):
     """Median whole-frame ms of a built-in method (:func:`runtime.methods.load_method`) on the
     synthetic sequence (frames prepared outside the timed call); 0 for ``noisy``."""
     from runtime.methods import load_method
 
     if name == "noisy":
         return 0.0
-    m = load_method(name, threads=threads)
+    m = load_method(name, threads=threads, device=device)
     ts = []
     for t in range(warmup + frames):
         fr = synthetic_frame(w, h, t, seed)
@@ -160,9 +171,18 @@ def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: i
     return statistics.median(ts[warmup:])
 
 
-def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0):
-    """{stage: median ms} and the graph's total of torch eager, stages by forward hooks."""
+def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0,
+                device: str = "cpu"):
+    """{stage: median ms} and the graph's total of torch eager, stages by forward hooks (on
+    ``device="cuda"`` each hook synchronises, so a stage's time is its kernels' time)."""
     import torch
+
+    model = model.to(device)
+
+    def now():
+        if device == "cuda":
+            torch.cuda.synchronize()
+        return time.perf_counter()
 
     from runtime.frames import Frame
     from runtime.inputs import frame_inputs
@@ -174,17 +194,17 @@ def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int
         mod = getattr(model, s, None)
         if mod is None:
             continue
-        handles.append(mod.register_forward_pre_hook(lambda m, a, s=s: starts.__setitem__(s, time.perf_counter())))
+        handles.append(mod.register_forward_pre_hook(lambda m, a, s=s: starts.__setitem__(s, now())))
         handles.append(mod.register_forward_hook(
-            lambda m, a, o, s=s: times.setdefault(s, []).append(1e3 * (time.perf_counter() - starts[s]))))
+            lambda m, a, o, s=s: times.setdefault(s, []).append(1e3 * (now() - starts[s]))))
     fr = synthetic_frame(w, h, 0, seed)
     frame = Frame(**{k: v for k, v in fr.items()})
-    feeds = {k: torch.from_numpy(v) for k, v in frame_inputs(frame, [n for n in model.input_names
+    feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(frame, [n for n in model.input_names
                                                                     if not n.startswith("prev_") and n != "history"]).items()}
     args = []
     for n in model.input_names:
         if n == "history":
-            args.append(torch.ones(1, 1, h, w))
+            args.append(torch.ones(1, 1, h, w, device=device))
         elif n.startswith("prev_"):
             args.append(feeds["color"].clone())
         else:
@@ -192,9 +212,9 @@ def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int
     total = []
     with torch.inference_mode():
         for i in range(warmup + frames):
-            t0 = time.perf_counter()
+            t0 = now()
             model(*args)
-            total.append(1e3 * (time.perf_counter() - t0))
+            total.append(1e3 * (now() - t0))
     for hd in handles:
         hd.remove()
     med = {s: statistics.median(v[warmup:]) for s, v in times.items()}
@@ -260,7 +280,7 @@ def _model_paths(models) -> list[str]:
 
 def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHART_SIZE, frames=5,
         warmup=2, threads=0, torch_too=True, quality=True, stills=None, data=None, quick=False,
-        seed=0, out="docs/results", command="mcdenoise bench", log=print) -> dict:
+        seed=0, out="docs/results", command="mcdenoise bench", log=print, device="cpu") -> dict:
     """Run the benchmark and write every output file; returns the collected results.
 
     ``models``: ONNX files (default: the shipped ones).  ``builtins``: built-in methods.
@@ -276,9 +296,9 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     if chart not in sizes:
         sizes.append(chart)
     threads_used = threads or len(os.sched_getaffinity(0))
-    device = timing.cpu_name()
+    machine = timing.cpu_name() if device == "cpu" else f"{gpu_name()} (CUDA), host {timing.cpu_name()}"
     names = {p: Denoiser.load(p, log=lambda m: None).contract.spec_name for p in models}
-    res = {"command": command, "device": device, "threads": threads_used, "chart_size": chart,
+    res = {"command": command, "device": machine, "compute_device": device, "threads": threads_used, "chart_size": chart,
            "sizes": sizes, "frames": frames, "warmup": warmup, "models": names,
            "builtins": list(builtins)}
 
@@ -287,9 +307,9 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
         res["quality"], res["testsets"] = quality_part(models, builtins, stills, data, quick, threads, log)
     # --- timing
     res["stage_rows"], res["frame_ms"] = timing_part(models, builtins, sizes, frames, warmup, threads,
-                                                     torch_too, seed, log)
+                                                     torch_too, seed, log, device)
     # --- compute
-    res["flops"] = flops_part(names, sizes, log)
+    res["flops"] = flops_part(names, sizes, log, device)
     res["seconds"] = time.perf_counter() - t_start
     write_outputs(res, out)
     log(f"bench took {res['seconds']:.0f} s; wrote {out}/bench.md")
@@ -339,7 +359,7 @@ def quality_part(models, builtins, stills, data, quick, threads, log):
     return qual, testsets
 
 
-def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, seed, log):
+def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, seed, log, device="cpu"):
     from training.specs import build_model, parse_spec
 
     if torch_too:
@@ -351,14 +371,14 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
     for w, h in sizes:
         size = f"{w}x{h}"
         for path in models:
-            den, ort_med = bench_onnx(path, w, h, frames, warmup, threads, seed)
+            den, ort_med = bench_onnx(path, w, h, frames, warmup, threads, seed, device)
             c = den.contract
             stages = [s["name"] for s in c.stages]
             torch_med = {}
             if torch_too:
                 spec = parse_spec(c.spec_toml, f"{path} (embedded spec)")
                 model = build_model(spec).eval().deploy()
-                torch_med = bench_torch(model, stages, w, h, frames, warmup, seed)
+                torch_med = bench_torch(model, stages, w, h, frames, warmup, seed, device)
             order = list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER) + [timing.GRAPH, timing.TOTAL]
             for s in order:
                 rows.append({"model": c.spec_name, "size": size, "stage": s,
@@ -368,7 +388,7 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
             log(f"{c.spec_name} {size}: onnxruntime {ort_med[timing.TOTAL]:.1f} ms/frame"
                 + (f", torch graph {torch_med[timing.GRAPH]:.1f} ms" if torch_med else ""))
         for b in builtins:
-            ms = bench_method(b, w, h, frames, warmup, threads, seed)
+            ms = bench_method(b, w, h, frames, warmup, threads, seed, device)
             frame_ms[(b, size)] = ms
             rows.append({"model": b, "size": size, "stage": timing.TOTAL, "onnxruntime_ms": None,
                          "torch_ms": None, "paper_ms": None, "method_ms": ms})
@@ -376,12 +396,23 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
     return rows, frame_ms
 
 
-def flops_part(names: dict, sizes, log):
+def gpu_name() -> str:
+    """The CUDA device's name (torch), for tables written with ``--device cuda``."""
+    try:
+        import torch
+
+        return torch.cuda.get_device_name(0)
+    except Exception:  # a label only: never fail a benchmark over it
+        return "CUDA GPU"
+
+
+def flops_part(names: dict, sizes, log, device="cpu"):
     """FLOP counts of every model (``names``: path -> spec name) at each size and 1280x720,
     Open Image Denoise's published U-Net, and this CPU's peak."""
     from runtime.flops import count_flops, cpu_peak
 
-    out = {"peak": cpu_peak(), "models": {}, "oidn": {}}
+    peak = cpu_peak() if device == "cpu" else {"gflops": None, "assumptions": "GPU peak not stated"}
+    out = {"peak": peak, "models": {}, "oidn": {}}
     all_sizes = sorted(set(sizes) | {(1280, 720)})
     for path, name in names.items():
         for w, h in all_sizes:
@@ -776,6 +807,10 @@ def add_arguments(p):
     p.add_argument("--no-quality", action="store_true", help="timing and FLOPs only")
     p.add_argument("--out", default=None,
                    help="output folder (default docs/results; --quick: runs/bench-quick)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="cuda: onnxruntime's CUDA provider (needs onnxruntime-gpu), torch and Open Image "
+                        "Denoise on the GPU; implies --no-quality (quality does not depend on the device) "
+                        "and leaves out svgf (numpy, CPU only) unless --methods names it")
     add_threads(p)
 
 
@@ -795,6 +830,8 @@ def command_line(args) -> str:
         parts += ["--seed", str(args.seed)]
     if args.threads:
         parts += ["--threads", str(args.threads)]
+    if args.device != "cpu":
+        parts += ["--device", args.device]
     for flag in ("no_torch", "no_oidn", "no_quality"):
         if getattr(args, flag):
             parts.append("--" + flag.replace("_", "-"))
@@ -804,12 +841,16 @@ def command_line(args) -> str:
 def main(args) -> int:
     q = args.quick
     builtins = [m for m in args.methods if not (args.no_oidn and m.startswith("oidn-"))]
-    out = args.out or ("runs/bench-quick" if q else "docs/results")
+    cuda = args.device == "cuda"
+    if cuda and list(args.methods) == list(BUILTIN_METHODS):
+        builtins = [m for m in builtins if m != "svgf"]
+    out = args.out or ("runs/bench-quick" if q else "docs/results/gpu" if cuda else "docs/results")
     run(models=args.models, builtins=builtins,
         sizes=args.sizes or (["64x64"] if q else list(DEFAULT_SIZES)),
         chart_size=args.chart_size or ("64x64" if q else CHART_SIZE),
         frames=args.frames or (3 if q else 5), warmup=args.warmup if args.warmup is not None else (1 if q else 2),
-        threads=args.threads, torch_too=not (args.no_torch or q), quality=not args.no_quality,
-        stills=args.stills, data=args.data, quick=q, seed=args.seed, out=out, command=command_line(args))
+        threads=args.threads, torch_too=not (args.no_torch or q), quality=not (args.no_quality or cuda),
+        stills=args.stills, data=args.data, quick=q, seed=args.seed, out=out, command=command_line(args),
+        device=args.device)
     print(f"wrote {out}/bench.md, bench.csv, bench_quality.csv, bench_flops.csv and the charts")
     return 0
