@@ -35,7 +35,7 @@ with reduction "add", opset >= 16).  Not used, because wrong: torch's exports of
 and ``index_put_(accumulate=True)`` (a ScatterND *without* reduction), and ONNX ScatterND with
 reduction "add", which onnxruntime runs in parallel with lost updates where indices
 repeat (onnxruntime 1.32 CPU, measured: errors of 8% at 4 threads).  Slicing gathers the 8 corner rows with
-``index_select`` (ONNX Gather of rows, 2.5x faster than per-element GatherElements; 5-D
+``index_select`` (ONNX Gather of rows: 1.7x faster than per-element GatherElements; 5-D
 ``grid_sample`` does not export).  Both are
 differentiable w.r.t. the values and the guide (the corner weights carry the guide gradient;
 the tent's kink sits on cell boundaries, where the trilinear weights are continuous).
