@@ -29,16 +29,16 @@ on each axis lie inside.  (The paper's Eq. 8 gives ⌈h/η_h⌉ etc., one cell f
 unit support needs at the last pixel.)  Stored (N, C+1, D, Hg, Wg): C value channels, then the
 weight sum Σ_j w_{p,j} of Eq. 10.
 
-Inside the stages a grid is stored as rows (N·cells, C+1), channels last.  Splatting adds the
-8 corners × (C+1) channels of every pixel with one 1-D ``scatter_add`` (:func:`splat_corners`) (ONNX ScatterElements
-with reduction "add", opset >= 16).  Not used, because wrong: torch's exports of ``index_add``
-and ``index_put_(accumulate=True)`` (a ScatterND *without* reduction), and ONNX ScatterND with
-reduction "add", which onnxruntime runs in parallel with lost updates where indices
-repeat (onnxruntime 1.32 CPU, measured: errors of 8% at 4 threads).  Slicing gathers the 8 corner rows with
-``index_select`` (ONNX Gather of rows: 1.7x faster than per-element GatherElements; 5-D
-``grid_sample`` does not export).  Both are
-differentiable w.r.t. the values and the guide (the corner weights carry the guide gradient;
-the tent's kink sits on cell boundaries, where the trilinear weights are continuous).
+Inside the stages a grid is stored as rows (N·cells, C+1), channels last. Splatting adds the 8
+corners × (C+1) channels of every pixel with one 1-D ``scatter_add`` (:func:`splat_corners`)
+(ONNX ScatterElements with reduction "add", opset >= 16). Not used, because wrong: torch's
+exports of ``index_add`` and ``index_put_(accumulate=True)`` (a ScatterND *without* reduction),
+and ONNX ScatterND with reduction "add", which onnxruntime runs in parallel with lost updates
+where indices repeat (onnxruntime 1.32 CPU, measured: errors of 8% at 4 threads). Slicing
+gathers the 8 corner rows with ``index_select`` (ONNX Gather of rows: 1.7x faster than
+per-element GatherElements; 5-D ``grid_sample`` does not export). Both are differentiable w.r.t.
+the values and the guide (the corner weights carry the guide gradient; the tent's kink sits on
+cell boundaries, where the trilinear weights are continuous).
 
 Demodulation.  0 albedo (misses, delta BSDFs) is handled as in WSKPN, by the one
 :data:`training.models.common.ALBEDO_EPS`: irradiance = radiance / (albedo + ALBEDO_EPS) is
