@@ -6,7 +6,8 @@
 
 The graph's dynamic dimensions are bound (N = 1, H, W from the first 4-D input's named
 dims) and ONNX shape inference (with data propagation) gives every tensor a concrete shape;
-each node is then counted from its input and output shapes.  Needs the ``onnx`` package
+tensors whose size depends on values it cannot propagate (NBG's grid sizes) get theirs from
+one onnxruntime run on zero inputs.  Each node is then counted from its input and output shapes.  Needs the ``onnx`` package
 (``pip install onnx``; the [train] extra has it), imported only when counting, so the runtime
 driver itself stays numpy + onnxruntime.
 
@@ -155,7 +156,46 @@ def _shapes(model) -> dict[str, tuple]:
             shapes[vi.name] = tuple(dims)
     for i in model.graph.initializer:
         shapes[i.name] = tuple(int(d) for d in i.dims)
+    missing = [o for n in model.graph.node for o in n.output if o and o not in shapes]
+    if missing:
+        shapes.update(_run_shapes(model, inferred, missing))
     return shapes
+
+
+def _run_shapes(model, inferred, names: list[str]) -> dict[str, tuple]:
+    """Shapes static inference cannot give (sizes computed from data, e.g. NBG's grid sizes
+    from H and W): run the bound graph once on zero inputs with those tensors as outputs."""
+    import onnx
+    import onnxruntime as ort
+
+    types = {vi.name: vi.type for vi in list(inferred.graph.value_info) + list(inferred.graph.output)}
+    m = onnx.ModelProto()
+    m.CopyFrom(model)
+    have = {o.name for o in m.graph.output}
+    for name in names:
+        if name in have:
+            continue
+        vi = onnx.ValueInfoProto(name=name)
+        if name in types and types[name].tensor_type.elem_type:
+            vi.type.tensor_type.elem_type = types[name].tensor_type.elem_type
+        else:
+            vi.type.tensor_type.elem_type = onnx.TensorProto.FLOAT
+        m.graph.output.append(vi)
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    # Unoptimised, so every requested tensor still exists (no fusion removes it).
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    sess = ort.InferenceSession(m.SerializeToString(), so, providers=["CPUExecutionProvider"])
+    feeds = {}
+    init = {i.name for i in m.graph.initializer}
+    for inp in m.graph.input:
+        if inp.name in init:
+            continue
+        t = inp.type.tensor_type
+        dt = onnx.helper.tensor_dtype_to_np_dtype(t.elem_type)
+        feeds[inp.name] = np.zeros([d.dim_value for d in t.shape.dim], dtype=dt)
+    outs = sess.run(names, feeds)
+    return {n: tuple(int(d) for d in np.shape(o)) for n, o in zip(names, outs)}
 
 
 def _attrs(node) -> dict:

@@ -130,3 +130,27 @@ def test_oidn_unet_count_and_peak():
     assert c["padded"] == "1280x720" and bench.oidn_unet_count(100, 50)["padded"] == "112x64"
     p = cpu_peak(threads=2)
     assert p["cores"] == 2 and p["flops_per_cycle"] in (8, 16, 32, 64)
+
+
+def test_flops_of_an_nbg_graph_with_data_dependent_grid_sizes(tmp_path):
+    # NBG's grid sizes are computed from H and W inside the graph: static inference cannot
+    # size the splat, so the counter runs the graph once for those shapes.
+    import torch
+
+    from export.onnx_export import export_model
+    from training.specs import build_model, load_spec
+
+    torch.manual_seed(0)
+    spec = load_spec("nbg-2l-3g")
+    path = tmp_path / "nbg.onnx"
+    export_model(spec, build_model(spec).eval(), path)
+    w, h = 64, 48
+    c = count_flops(str(path), w, h)
+    assert not c.uncounted
+    assert set(c.per_stage) == set(spec.stages)
+    model = onnx.load(str(path))
+    inits = {i.name: tuple(i.dims) for i in model.graph.initializer}
+    convs = [n for n in model.graph.node if n.op_type == "Conv"]
+    assert c.per_op["Conv"]["fmas"] == sum(h * w * int(np.prod(inits[n.input[1]])) for n in convs)
+    # one scatter-add update per pixel, corner and channel: 8 corners x 4 channels x 3 grids
+    assert c.per_op["ScatterElements"]["flops"] == h * w * 8 * 4 * 3
