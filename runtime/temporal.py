@@ -13,6 +13,8 @@ prev = (x, y) + motion (x right, y down); positions (N, 3, H, W) world space; no
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from runtime.transfer import xp
@@ -87,9 +89,11 @@ def reproject(states, motion, cur: dict, prev: dict):
     if not is_np:
         acc, history = _reproject_rows(stacked, motion, cur, 0, h, use_pos, use_nrm)
     else:
-        parts = [_reproject_rows(stacked, motion[:, :, y:y + BAND_ROWS],
-                                 {k: v[:, :, y:y + BAND_ROWS] for k, v in cur.items()}, y, h, use_pos, use_nrm)
-                 for y in range(0, h, BAND_ROWS)]
+        def band(y):
+            return _reproject_rows(stacked, motion[:, :, y:y + BAND_ROWS],
+                                   {k: v[:, :, y:y + BAND_ROWS] for k, v in cur.items()}, y, h, use_pos, use_nrm)
+
+        parts = list(_pool().map(band, range(0, h, BAND_ROWS)))
         acc = np.concatenate([p[0] for p in parts], axis=2)
         history = np.concatenate([p[1] for p in parts], axis=2)
     warped, c = [], 0
@@ -97,6 +101,20 @@ def reproject(states, motion, cur: dict, prev: dict):
         warped.append(acc[:, c:c + st.shape[1]])
         c += st.shape[1]
     return warped, history
+
+
+_POOL = None
+
+
+def _pool():
+    """Threads for the numpy bands: numpy releases the GIL in gathers and element-wise ops, so
+    bands run in parallel on every core (the driver's other work is onnxruntime's, not ours)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=max(1, len(os.sched_getaffinity(0))), thread_name_prefix="reproject")
+    return _POOL
 
 
 def _reproject_rows(stacked, motion, cur: dict, y_offset: int, h_full: int, use_pos: bool, use_nrm: bool):
