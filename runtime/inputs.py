@@ -48,6 +48,11 @@ class SanitizeReport:
         return ", ".join(parts) if parts else "clean"
 
 
+#: Albedo demodulation epsilon, for every method that filters irradiance (WSKPN, NBG, SVGF):
+#: irradiance = radiance / (albedo + ALBEDO_EPS), multiplied back by the same factor, so an
+#: identity filter returns its input exactly.  0 albedo (misses, delta BSDFs) makes
+#: irradiance 100x radiance there.
+ALBEDO_EPS = 1e-2
 #: What replaces a non-finite value, per layer (0 for layers not listed).  Albedo gets 1, the
 #: neutral value of albedo demodulation: with 0 a pixel whose albedo is broken would be
 #: re-modulated to black by every demodulating method (WSKPN, NBG, SVGF); with 1 it keeps its

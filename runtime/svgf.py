@@ -40,13 +40,9 @@ import numpy as np
 
 from runtime.denoiser import GUIDE_LAYERS, _as_frame
 from runtime.frames import FrameError
-from runtime.inputs import SanitizeReport, sanitize_array
+from runtime.inputs import ALBEDO_EPS, SanitizeReport, sanitize_array
 from runtime.temporal import reproject
 
-#: Albedo demodulation epsilon: illumination = radiance / (albedo + ALBEDO_EPS), re-modulated by
-#: the same factor.  The models' value (training/models/common.py, which should import this
-#: one: runtime/ has no torch, so the definition belongs here).
-ALBEDO_EPS = 1e-2
 #: Exponential moving average weights of colour and moments (SVGF: 0.2 each).
 ALPHA_COLOR = 0.2
 ALPHA_MOMENTS = 0.2

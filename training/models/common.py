@@ -3,7 +3,7 @@
 Defined here once so that every model demodulates, accumulates and builds its network input
 the same way (STYLE: no magic constant in ten files):
 
-* :data:`ALBEDO_EPS` and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
+* :data:`ALBEDO_EPS` (from :mod:`runtime.inputs`) and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
 * :func:`temporal_accumulate` and :class:`TemporalStage`: the exponential moving average with
   the driver's reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2);
 * :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth].
@@ -13,12 +13,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
 from runtime.transfer import get as get_transfer
-
-#: Albedo demodulation epsilon: irradiance = radiance / (albedo + ALBEDO_EPS), and the result
-#: is multiplied back by the same (albedo + ALBEDO_EPS), so an identity filter returns the
-#: input exactly.  0 albedo (misses, delta BSDFs) makes irradiance 100x radiance there.
-ALBEDO_EPS = 1e-2
 
 
 def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
