@@ -89,13 +89,17 @@ def reproject(states, motion, cur: dict, prev: dict):
     if not is_np:
         acc, history = _reproject_rows(stacked, motion, cur, 0, h, use_pos, use_nrm)
     else:
-        def band(y):
-            return _reproject_rows(stacked, motion[:, :, y:y + BAND_ROWS],
-                                   {k: v[:, :, y:y + BAND_ROWS] for k, v in cur.items()}, y, h, use_pos, use_nrm)
+        # Bands write straight into the outputs: no whole-frame concatenation afterwards.
+        acc = np.empty((n, sum(st.shape[1] for st in states), h, w), dtype=stacked.dtype)
+        history = np.empty((n, 1, h, w), dtype=motion.dtype)
 
-        parts = list(_pool().map(band, range(0, h, BAND_ROWS)))
-        acc = np.concatenate([p[0] for p in parts], axis=2)
-        history = np.concatenate([p[1] for p in parts], axis=2)
+        def band(y):
+            a, hi = _reproject_rows(stacked, motion[:, :, y:y + BAND_ROWS],
+                                    {k: v[:, :, y:y + BAND_ROWS] for k, v in cur.items()}, y, h, use_pos, use_nrm)
+            acc[:, :, y:y + BAND_ROWS] = a
+            history[:, :, y:y + BAND_ROWS] = hi
+
+        list(_pool().map(band, range(0, h, BAND_ROWS)))
     warped, c = [], 0
     for st in states:
         warped.append(acc[:, c:c + st.shape[1]])
