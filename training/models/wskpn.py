@@ -146,8 +146,9 @@ def importance_weights(importance: torch.Tensor) -> torch.Tensor:
 
 def _weighted_window_means(x: torch.Tensor, weights: torch.Tensor, k: int):
     """(window mean of w·x (N, C, H, W), window mean of w (N, 1, H, W)), pooled together."""
-    s = _window_mean(torch.cat([weights * x, weights], dim=1), k)
-    return s[:, :-1], s[:, -1:]
+    # Pooled separately: a channel concat and the split afterwards cost more in onnxruntime
+    # than a second (1-channel) pooling pass.
+    return _window_mean(weights * x, k), _window_mean(weights, k)
 
 
 def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch.Tensor:
@@ -189,14 +190,23 @@ def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor
     if kernel_path not in KERNEL_PATHS:
         raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {kernel_path!r}")
     a = torch.exp(logits - logits.amax(dim=1, keepdim=True))
-    weights = importance_weights(importance) if kernel_path == "boxsum" else None
+    if kernel_path == "boxsum":
+        # Channel by channel: every multiply and pool is on same-shape (N, 1, H, W) planes;
+        # onnxruntime runs (N, 1, H, W) x (N, 3, H, W) broadcasts nearly single-threaded.
+        weights = importance_weights(importance)
+        planes = [x[:, c:c + 1] for c in range(x.shape[1])]
+        acc = [None] * len(planes)
+        for i, k in enumerate(kernel_sizes):
+            w = weights[:, i:i + 1]
+            scale = a[:, i:i + 1] / _window_mean(w, k)   # α_i / boxsum_k(w)
+            for c, p in enumerate(planes):
+                term = _window_mean(w * p, k) * scale
+                acc[c] = term if acc[c] is None else acc[c] + term
+        inv = 1.0 / a.sum(dim=1, keepdim=True)
+        return torch.cat([t * inv for t in acc], dim=1)
     acc = None
     for i, k in enumerate(kernel_sizes):
-        if kernel_path == "boxsum":
-            num, den = _weighted_window_means(x, weights[:, i:i + 1], k)
-            term = num * (a[:, i:i + 1] / den)  # α_i·R_i with one 3-channel multiply
-        else:
-            term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
+        term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
         acc = term if acc is None else acc + term
     return acc / a.sum(dim=1, keepdim=True)
 
