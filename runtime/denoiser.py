@@ -29,7 +29,7 @@ import numpy as np
 from runtime import timing, transfer
 from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
-from runtime.inputs import SanitizeReport, frame_inputs
+from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_inputs
 from runtime.temporal import reproject
 
 #: Guide layers stored for the consistency test, when the frame has them.
@@ -68,8 +68,12 @@ def _as_frame(frame) -> Frame:
 class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
-    def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None):
+    def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
+                 autoexposure: bool = True):
         self.session = session
+        self.autoexposure = autoexposure
+        #: The current history's auto-exposure factor (set at its first frame; 1 when off).
+        self.exposure = 1.0
         self.contract = contract
         self.path = path
         self._profile_path = profile_path
@@ -90,13 +94,16 @@ class Denoiser:
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
-             profile: bool = False, log=None) -> "Denoiser":
+             profile: bool = False, log=None, autoexposure: bool = True) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
           providers: onnxruntime execution providers (default: CPU).
           threads: intra-op threads (0: onnxruntime default).
           profile: record per-node times so :meth:`stage_table` can split the graph by stage.
+          autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
+            (factor fixed at the history's first frame, so the state stays in one unit) and the
+            output back: the result no longer depends on the renderer's radiance units.
         Raises ModelFileError for a missing, corrupt or foreign file.
         """
         import onnxruntime as ort
@@ -120,7 +127,7 @@ class Denoiser:
             contract = parse_contract(sess.get_modelmeta().custom_metadata_map)
         except ValueError as e:
             raise ModelFileError(f"{path}: {e}") from None
-        return cls(sess, contract, path, profile_path=prof, log=log)
+        return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -167,16 +174,23 @@ class Denoiser:
                 self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
                           "further sanitising is counted in the report", once_key="sanitize:" + kinds)
             guides = self._guide_buffers(fr)
+            if self._state is None:
+                # A new history: fix its exposure now, so the state stays in one unit.
+                self.exposure = float(exposure_scale(feeds_by_layer["color"]).ravel()[0]) if self.autoexposure else 1.0
+            feeds = {}
+            for l, a in feeds_by_layer.items():
+                if l in RADIANCE_LAYERS and self.exposure != 1.0:
+                    a = a * np.float32(self.exposure)
+                feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
-            feeds = {self._input_name[l]: transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
-                     for l, a in feeds_by_layer.items()}
-            state_in = self._state_inputs(fr, guides, h, w)
-            feeds.update(state_in)
+            feeds.update(self._state_inputs(fr, guides, h, w))
         with tm.stage(timing.GRAPH):
             outs = self.session.run(None, feeds)
         with tm.stage(timing.POSTPROCESS):
             named = dict(zip([o.name for o in self.session.get_outputs()], outs))
             image = named["output"][0].transpose(1, 2, 0)
+            if self.exposure != 1.0:
+                image = image * np.float32(1.0 / self.exposure)
             if not np.isfinite(image).all():
                 bad = ~np.isfinite(image)
                 image = np.where(bad, feeds_by_layer["color"][0].transpose(1, 2, 0), image)

@@ -42,6 +42,7 @@ from runtime.denoiser import GUIDE_LAYERS, _as_frame
 from runtime.frames import FrameError
 from runtime.inputs import ALBEDO_EPS, SanitizeReport, sanitize_array
 from runtime.temporal import reproject
+from runtime.transfer import LUMA as TRANSFER_LUMA
 
 #: Exponential moving average weights of colour and moments (SVGF: 0.2 each).
 ALPHA_COLOR = 0.2
@@ -58,7 +59,7 @@ SIGMA_L = 4.0
 #: Relative depth floor in the depth term's denominator (fronto-parallel planes have no gradient).
 DEPTH_EPS_REL = 1e-3
 #: Luminance weights (Rec. 709).
-LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+LUMA = np.array(TRANSFER_LUMA, np.float32)
 #: Output rows processed at a time by the à-trous filter (temporaries stay in cache).
 BAND_ROWS = 16
 

@@ -20,6 +20,22 @@ GAMMA = 2.2
 REINHARD_GAMMA = 2.4
 
 
+#: Rec. 709 luminance weights of linear RGB: the one definition (models, SVGF, exposure).
+LUMA = (0.2126, 0.7152, 0.0722)
+
+
+def luminance(color, axis: int = 1):
+    """Rec. 709 luminance of linear RGB along ``axis`` (default 1: NCHW), keeping that axis
+    with size 1: (N, 3, H, W) -> (N, 1, H, W).  numpy or torch."""
+    idx = [slice(None)] * color.ndim
+
+    def ch(c):
+        idx[axis] = slice(c, c + 1)
+        return color[tuple(idx)]
+
+    return LUMA[0] * ch(0) + LUMA[1] * ch(1) + LUMA[2] * ch(2)
+
+
 def xp(x: Any):
     """Array namespace of ``x``: the torch module for tensors, else numpy."""
     if type(x).__module__.startswith("torch"):

@@ -222,3 +222,43 @@ def test_nonfinite_albedo_does_not_black_out_the_pixel():
     out = Denoiser.load(shipped, log=lambda m: None)(broken)
     assert np.isfinite(out).all()
     assert (out[10, 10] > 0.3 * clean[10, 10]).all(), (out[10, 10], clean[10, 10])
+
+
+def test_exposure_scale_values():
+    from runtime.inputs import AUTOEXPOSURE_KEY, exposure_scale
+
+    grey = np.full((1, 3, 32, 48), 0.5, np.float32)
+    assert exposure_scale(grey).shape == (1, 1, 1, 1)
+    np.testing.assert_allclose(exposure_scale(grey).ravel(), AUTOEXPOSURE_KEY / 0.5, rtol=1e-5)
+    # geometric mean of block means: half the 16x16 blocks at 0.02, half at 2 -> 0.2
+    two = np.full((1, 3, 32, 32), 2.0, np.float32)
+    two[:, :, :16] = 0.02
+    np.testing.assert_allclose(exposure_scale(two).ravel(), AUTOEXPOSURE_KEY / 0.2, rtol=1e-5)
+    # black blocks are left out; an all-black image keeps its exposure
+    part = grey.copy()
+    part[:, :, :16] = 0.0
+    np.testing.assert_allclose(exposure_scale(part).ravel(), AUTOEXPOSURE_KEY / 0.5, rtol=1e-5)
+    assert exposure_scale(np.zeros((2, 3, 8, 8), np.float32)).ravel().tolist() == [1.0, 1.0]
+    rng = np.random.default_rng(0)
+    x = rng.exponential(0.3, (2, 3, 40, 50)).astype(np.float32)
+    np.testing.assert_allclose(exposure_scale(x * 1e-3), exposure_scale(x) * 1e3, rtol=1e-4)
+    np.testing.assert_allclose(exposure_scale(torch.from_numpy(x)).numpy(), exposure_scale(x), rtol=1e-5)
+
+
+def test_autoexposure_makes_output_independent_of_radiance_units():
+    shipped = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "models", "wskpn-3.onnx")
+
+    def run(scale, auto=True):
+        den = Denoiser.load(shipped, log=lambda m: None, autoexposure=auto)
+        outs = []
+        for t in range(3):
+            f = _frame(t, 48, 40)
+            f.color = f.color * np.float32(scale)
+            outs.append(den(f) / np.float32(scale))
+        return np.stack(outs)
+
+    base = run(1.0)
+    for scale in (1e-3, 1e3):
+        np.testing.assert_allclose(run(scale), base, rtol=2e-3, atol=1e-6)
+    # without it the network sees different inputs, and the result changes
+    assert np.abs(run(1e-3, auto=False) - run(1.0, auto=False)).max() > 1e-2 * np.abs(base).max()

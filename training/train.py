@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.args import add_data, add_seed, add_threads
+from runtime.contract import OUTPUT
+from runtime.inputs import exposure_scale
 from runtime.metrics import psnr, relmse, smape
 from runtime.temporal import reproject
 from runtime.transfer import gamma
@@ -66,8 +68,13 @@ def model_inputs(model, frame: dict, states: dict | None, history, state_channel
     return args
 
 
-def run_window(model, batch: dict, state_channels: dict):
-    """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts."""
+def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = True):
+    """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts.
+
+    As the runtime driver does, each window's colour is scaled by its auto-exposure factor
+    (:func:`runtime.inputs.exposure_scale` of its first frame, fixed for the window) and the
+    ``output`` scaled back, so outputs are in the data's units and the state in the
+    window's exposed units."""
     import torch
 
     b, t_len = batch["color"].shape[:2]
@@ -76,16 +83,21 @@ def run_window(model, batch: dict, state_channels: dict):
     prev_guides = None
     h, w = batch["color"].shape[-2:]
     history = torch.zeros(b, 1, h, w)
+    exposure = exposure_scale(batch["color"][:, 0]) if autoexposure else None
     for t in range(t_len):
         frame = {k: v[:, t] for k, v in batch.items() if k != "spp"}
+        if exposure is not None:
+            frame["color"] = frame["color"] * exposure
         guides = {"depth": frame["depth"],
                   "position": frame["position"], "normal": frame["normal_world"]}
         if t > 0:
             names = [n for n in model.output_names if n.startswith("next_")]
             warped, history = reproject([outputs[-1][n] for n in names], frame["motion"], guides, prev_guides)
             states = {n[5:]: s for n, s in zip(names, warped)}
-        out = model(*model_inputs(model, frame, states, history, state_channels))
-        outputs.append(dict(zip(model.output_names, out)))
+        out = dict(zip(model.output_names, model(*model_inputs(model, frame, states, history, state_channels))))
+        if exposure is not None:
+            out[OUTPUT] = out[OUTPUT] / exposure
+        outputs.append(out)
         prev_guides = guides
     return outputs
 

@@ -56,6 +56,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from runtime.transfer import luminance as _luminance
 from training.models.common import TemporalStage, aux_features, demodulate, remodulate, temporal_accumulate
 from training.specs import ModelSpec, SpecError, register
 
@@ -72,7 +73,6 @@ ACCUM = "accum"
 OUTLIER_SIGMAS = 3.0
 OUTLIER_SLACK = 0.1
 #: Rec. 709 luminance weights.
-LUMA = (0.2126, 0.7152, 0.0722)
 #: Floor of the slice denominator: where no non-empty cell is in reach (never with the splat
 #: guide itself) the sliced value is 0 instead of 0/0.
 SLICE_FLOOR = 1e-12
@@ -258,8 +258,8 @@ def slice_grid(grid: torch.Tensor, guide: torch.Tensor, rates: Sequence[int],
 
 
 def luminance(color: torch.Tensor) -> torch.Tensor:
-    """Rec. 709 luminance: (N, 3, H, W) -> (N, 1, H, W)."""
-    return LUMA[0] * color[:, 0:1] + LUMA[1] * color[:, 1:2] + LUMA[2] * color[:, 2:3]
+    """Rec. 709 luminance: (N, 3, H, W) -> (N, 1, H, W) (:func:`runtime.transfer.luminance`)."""
+    return _luminance(color, 1)
 
 
 def remove_outliers(color: torch.Tensor, sigmas: float = OUTLIER_SIGMAS, slack: float = OUTLIER_SLACK) -> torch.Tensor:
