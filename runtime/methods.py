@@ -54,7 +54,7 @@ class OIDN:
     huge input is what users get, so the measuring commands feed it the frame as is.
     """
 
-    def __init__(self, quality: str = "high", device: str = "cpu"):
+    def __init__(self, quality: str = "high"):
         try:
             import pyoidn
         except ImportError as e:
@@ -62,11 +62,8 @@ class OIDN:
                              "(or the project's [bench] extra)") from e
         if quality not in ("high", "balanced", "fast"):
             raise ValueError(f"OIDN quality must be high, balanced or fast, got {quality!r}")
-        if device not in ("cpu", "cuda"):
-            raise ValueError(f"OIDN device must be cpu or cuda, got {device!r}")
         self._oidn = pyoidn
         self.quality = quality
-        self.device = device
         self.name = f"oidn-{quality}"
 
     def __call__(self, frame) -> np.ndarray:
@@ -78,16 +75,15 @@ class OIDN:
             aux["normal"] = np.ascontiguousarray(fr.normal, dtype=np.float32)
         if "normal" in aux and "albedo" not in aux:
             aux.pop("normal")  # OIDN accepts a normal only together with an albedo
-        color = np.ascontiguousarray(fr.color, dtype=np.float32)
-        if self.device == "cuda":
-            # pyoidn runs its CUDA device on torch CUDA tensors; the copies in and out are
-            # part of the cost, as they are for the onnxruntime driver.
-            import torch
+        out = self._oidn.denoise(self._array(np.ascontiguousarray(fr.color, dtype=np.float32)), hdr=True,
+                                 quality=self.quality, **{k: self._array(v) for k, v in aux.items()})
+        return self._numpy(out)
 
-            out = self._oidn.denoise(torch.from_numpy(color).cuda(), hdr=True, quality=self.quality,
-                                     **{k: torch.from_numpy(v).cuda() for k, v in aux.items()})
-            return out.cpu().numpy().astype(np.float32, copy=False)
-        out = self._oidn.denoise(color, hdr=True, quality=self.quality, **aux)
+    def _array(self, a: np.ndarray):
+        """The array type pyoidn runs on (numpy: its CPU device; subclasses may move it)."""
+        return a
+
+    def _numpy(self, out) -> np.ndarray:
         return np.asarray(out, dtype=np.float32)
 
     def reset(self) -> None:
@@ -121,7 +117,8 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
     """A method object for ``name``: an ``.onnx`` path or one of :data:`BUILTIN`.
 
     ``device`` ("cpu" or "cuda") picks onnxruntime's execution provider (unless ``providers``
-    is given) and Open Image Denoise's device; SVGF and the noisy input always run on the CPU.
+    is given); Open Image Denoise, SVGF and the noisy input run on the CPU here (pyoidn's CUDA
+    device needs torch tensors: ``training.bench`` wraps it, keeping this module torch-free).
     """
     if device not in PROVIDERS:
         raise ValueError(f"device must be one of {', '.join(PROVIDERS)}, got {device!r}")
@@ -130,7 +127,7 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
     if name == "noisy":
         return Noisy()
     if name.startswith("oidn-"):
-        return OIDN(name[len("oidn-"):], device=device)
+        return OIDN(name[len("oidn-"):])
     if name == "svgf":
         from runtime.svgf import SVGF
 

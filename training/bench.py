@@ -161,7 +161,8 @@ def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: i
 
     if name == "noisy":
         return 0.0
-    m = load_method(name, threads=threads, device=device)
+    m = oidn_cuda(name[len("oidn-"):]) if device == "cuda" and name.startswith("oidn-") else \
+        load_method(name, threads=threads, device=device)
     ts = []
     for t in range(warmup + frames):
         fr = synthetic_frame(w, h, t, seed)
@@ -169,6 +170,23 @@ def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: i
         m(fr)
         ts.append(1e3 * (time.perf_counter() - t0))
     return statistics.median(ts[warmup:])
+
+
+def oidn_cuda(quality: str):
+    """Open Image Denoise on its CUDA device (pyoidn runs it on torch CUDA tensors); the copies
+    to and from the GPU are part of the cost, as they are for the onnxruntime driver."""
+    import torch
+
+    from runtime.methods import OIDN
+
+    class OIDNCuda(OIDN):
+        def _array(self, a):
+            return torch.from_numpy(a).cuda()
+
+        def _numpy(self, out):
+            return out.cpu().numpy().astype(np.float32, copy=False)
+
+    return OIDNCuda(quality)
 
 
 def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0,
