@@ -154,3 +154,17 @@ def test_flops_of_an_nbg_graph_with_data_dependent_grid_sizes(tmp_path):
     assert c.per_op["Conv"]["fmas"] == sum(h * w * int(np.prod(inits[n.input[1]])) for n in convs)
     # one scatter-add update per pixel, corner and channel: 8 corners x 4 channels x 3 grids
     assert c.per_op["ScatterElements"]["flops"] == h * w * 8 * 4 * 3
+
+
+def test_cuda_bench_says_clearly_when_there_is_no_cuda_provider(tmp_path, capsys):
+    import onnxruntime as ort
+
+    rc = cli_main(["bench", "--device", "cuda", "--quick", "--no-torch", "--methods", "noisy",
+                   "--sizes", "32x32", "--chart-size", "32x32", "--frames", "1", "--warmup", "0",
+                   "--out", str(tmp_path)])
+    if "CUDAExecutionProvider" in ort.get_available_providers():   # onnxruntime-gpu on a GPU host
+        assert rc == 0 and (tmp_path / "bench.md").exists()
+    else:
+        assert rc == 2
+        err = capsys.readouterr().err
+        assert "no CUDA provider" in err and "onnxruntime-gpu" in err and "Traceback" not in err
