@@ -37,6 +37,11 @@ def add_arguments(p):
     p.add_argument("--no-profile", action="store_true",
                    help="skip onnxruntime profiling (graph time is then one row)")
     p.add_argument("--json", default=None, help="also write per-frame timings and metrics as JSON here")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="cuda: onnxruntime's CUDA provider (needs onnxruntime-gpu; the graph is then "
+                        "one row: CUDA kernels run asynchronously)")
+    p.add_argument("--no-autoexposure", action="store_true",
+                   help="feed the colour in the renderer's units (see README, auto-exposure)")
     add_threads(p)
 
 
@@ -69,8 +74,15 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None)
 
 
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
-        threads: int = 0, albedo=None, normal=None, log=print) -> dict:
-    den = Denoiser.load(model, threads=threads, profile=profile)
+        threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu",
+        autoexposure: bool = True) -> dict:
+    from runtime.methods import PROVIDERS
+
+    den = Denoiser.load(model, threads=threads, profile=profile and device == "cpu",
+                        providers=PROVIDERS[device], autoexposure=autoexposure)
+    if device == "cuda" and den.session.get_providers()[0] != "CUDAExecutionProvider":
+        raise ValueError(f"{model}: onnxruntime has no CUDA provider here (providers: "
+                         f"{', '.join(den.session.get_providers())}); install onnxruntime-gpu")
     seqs = load_inputs(input_path, albedo, normal)
     outs, refs = [], []
     n_frames = 0
@@ -103,7 +115,8 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
 
 def main(args) -> int:
     result = run(args.model, args.input, args.output, png=args.png, profile=not args.no_profile,
-                 threads=args.threads, albedo=args.albedo, normal=args.normal)
+                 threads=args.threads, albedo=args.albedo, normal=args.normal, device=args.device,
+                 autoexposure=not args.no_autoexposure)
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2, default=float) + "\n")
     return 0

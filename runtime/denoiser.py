@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,7 +121,10 @@ class Denoiser:
             so.enable_profiling = True
             so.profile_file_prefix = os.path.join(tempfile.mkdtemp(prefix="mcdenoise-prof-"), "ort")
         try:
-            sess = ort.InferenceSession(path, so, providers=providers or ["CPUExecutionProvider"])
+            with warnings.catch_warnings():
+                # A provider this onnxruntime lacks is reported by the caller, in one line.
+                warnings.filterwarnings("ignore", message=".*is not in available provider names.*")
+                sess = ort.InferenceSession(path, so, providers=providers or ["CPUExecutionProvider"])
         except Exception as e:
             raise ModelFileError(f"{path}: not a loadable ONNX model ({str(e).splitlines()[0][:200]})") from None
         try:

@@ -262,3 +262,17 @@ def test_autoexposure_makes_output_independent_of_radiance_units():
         np.testing.assert_allclose(run(scale), base, rtol=2e-3, atol=1e-6)
     # without it the network sees different inputs, and the result changes
     assert np.abs(run(1e-3, auto=False) - run(1.0, auto=False)).max() > 1e-2 * np.abs(base).max()
+
+
+def test_denoise_command_device_and_autoexposure_flags(tmp_path, capsys):
+    import onnxruntime as ort
+
+    from runtime.cli import main as cli_main
+
+    assert cli_main(["denoise", "--output", str(tmp_path / "a"), "--no-autoexposure", "--no-profile"]) == 0
+    rc = cli_main(["denoise", "--output", str(tmp_path / "b"), "--device", "cuda"])
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        assert rc == 0
+    else:
+        err = capsys.readouterr().err
+        assert rc == 2 and "no CUDA provider" in err and "Traceback" not in err
