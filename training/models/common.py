@@ -6,15 +6,21 @@ the same way (STYLE: no magic constant in ten files):
 * :data:`ALBEDO_EPS` (from :mod:`runtime.inputs`) and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
 * :func:`temporal_accumulate` and :class:`TemporalStage`: the exponential moving average with
   the driver's reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2);
-* :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth].
+* :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth];
+* :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`: the model-interface
+  bookkeeping of a model whose only state is the accumulated radiance.
 """
 from __future__ import annotations
 
 import torch
 from torch import nn
 
+from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
 from runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
 from runtime.transfer import get as get_transfer
+
+#: State name of the accumulated-radiance temporal state (WSKPN §4.1, NBG §4.6).
+ACCUM = "accum"
 
 
 def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
@@ -61,3 +67,31 @@ def aux_features(color: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor
     """
     dmax = depth.amax(dim=(1, 2, 3), keepdim=True).clamp(min=1e-12)
     return torch.cat([get_transfer(transfer)(color), albedo, normal * 0.5 + 0.5, depth / dmax], dim=1)
+
+
+def accum_interface(layers, temporal: bool):
+    """(state_channels, input_names, output_names) of a model on frame ``layers`` whose only
+    temporal state, when ``temporal``, is :data:`ACCUM` (3 channels) plus the history mask."""
+    state_in = (state_input_name(ACCUM), HISTORY) if temporal else ()
+    return ({ACCUM: 3} if temporal else {}, tuple(layers) + state_in,
+            (OUTPUT,) + ((state_output_name(ACCUM),) if temporal else ()))
+
+
+def bind_inputs(model: nn.Module, inputs) -> dict:
+    """``forward(*inputs)``'s tensors by ``model.input_names``; TypeError on a wrong count."""
+    if len(inputs) != len(model.input_names):
+        raise TypeError(f"{type(model).__name__}.forward takes {len(model.input_names)} tensors "
+                        f"{model.input_names}, got {len(inputs)}")
+    return dict(zip(model.input_names, inputs))
+
+
+def check_accum_state(spec, temporal: bool, where: str, type_name: str) -> None:
+    """SpecError unless ``spec``'s [[state]] is exactly the accumulated radiance when it has a
+    temporal stage, and empty otherwise."""
+    from training.specs import SpecError
+
+    state = [(s.name, s.channels) for s in spec.state]
+    want = [(ACCUM, 3)] if temporal else []
+    if state != want:
+        raise SpecError(f"{where}: [[state]] must be {want} for type '{type_name}' "
+                        f"({'with' if temporal else 'without'} a temporal stage), got {state}")

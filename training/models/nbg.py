@@ -55,9 +55,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from runtime.contract import HISTORY, state_input_name
 from runtime.transfer import luminance as _luminance
-from training.models.common import TemporalStage, aux_features, demodulate, remodulate, temporal_accumulate
+from training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
+                                    check_accum_state, demodulate, remodulate)
 from training.specs import ModelSpec, SpecError, register
 
 #: Range of the guide in grid units before division by η_d (Eq. 8: "d ... which we set to 255").
@@ -66,7 +67,6 @@ GUIDE_RANGE = 255.0
 LAYERS = ("color", "albedo", "normal", "depth")
 N_FEATURES = 10
 #: Name of the state tensor of the temporal stage (accumulated *demodulated* radiance).
-ACCUM = "accum"
 #: Outlier removal (§5, after [KBS15]): a pixel whose luminance exceeds the mean of its 8
 #: neighbours by more than OUTLIER_SIGMAS of their standard deviation *and* by more than
 #: OUTLIER_SLACK of that mean is replaced by the neighbours' mean colour.
@@ -429,16 +429,10 @@ class NBG(nn.Module):
         self.guide = GuideStage(params, transfer, demodulated=temporal)
         self.splat = SplatStage(params)
         self.slice = SliceStage(params)
-        self.state_channels = {ACCUM: 3} if temporal else {}
-        state_in = (state_input_name(ACCUM), HISTORY) if temporal else ()
-        self.input_names = tuple(layers) + state_in
-        self.output_names = (OUTPUT,) + ((state_output_name(ACCUM),) if temporal else ())
+        self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
 
     def forward(self, *inputs):
-        if len(inputs) != len(self.input_names):
-            raise TypeError(f"NBG.forward takes {len(self.input_names)} tensors "
-                            f"{self.input_names}, got {len(inputs)}")
-        t = dict(zip(self.input_names, inputs))
+        t = bind_inputs(self, inputs)
         x = t["color"]
         if self.temporal_enabled:
             x = self.temporal(x, t["albedo"], t[state_input_name(ACCUM)], t[HISTORY])
@@ -471,9 +465,5 @@ def build_nbg(spec: ModelSpec) -> NBG:
     stages = ("temporal",) + stages if temporal else stages
     if tuple(spec.stages) != stages:
         raise SpecError(f"{where}: stages must be {list(stages)} for type 'nbg', got {list(spec.stages)}")
-    state = [(s.name, s.channels) for s in spec.state]
-    want = [(ACCUM, 3)] if temporal else []
-    if state != want:
-        raise SpecError(f"{where}: [[state]] must be {want} for type 'nbg' "
-                        f"({'with' if temporal else 'without'} a temporal stage), got {state}")
+    check_accum_state(spec, temporal, where, "nbg")
     return NBG(params, spec.inputs.layers, spec.inputs.transfer, temporal)

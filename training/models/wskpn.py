@@ -34,9 +34,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
-from training.models.common import (ALBEDO_EPS, TemporalStage, aux_features,  # noqa: F401  (re-exported)
-                                    temporal_accumulate)
+from runtime.contract import HISTORY, state_input_name
+from training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
+                                    aux_features, bind_inputs, check_accum_state, temporal_accumulate)
 from training.specs import ModelSpec, SpecError, register
 
 #: Importance values are clamped to ±IMPORTANCE_BOUND before exp: a weight ratio of
@@ -49,7 +49,6 @@ KERNEL_PATHS = ("boxsum", "unfold")
 LAYERS = ("color", "albedo", "normal", "depth")
 N_FEATURES = 10
 #: Name of the state tensor of the temporal stage.
-ACCUM = "accum"
 
 
 @dataclass(frozen=True)
@@ -445,16 +444,10 @@ class WSKPN(nn.Module):
             self.temporal = TemporalStage(params.alpha)
         self.prediction = PredictionStage(params, transfer)
         self.reconstruction = ReconstructionStage(params, kernel_path)
-        self.state_channels = {ACCUM: 3} if temporal else {}
-        state_in = (state_input_name(ACCUM), HISTORY) if temporal else ()
-        self.input_names = tuple(layers) + state_in
-        self.output_names = (OUTPUT,) + ((state_output_name(ACCUM),) if temporal else ())
+        self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
 
     def forward(self, *inputs):
-        if len(inputs) != len(self.input_names):
-            raise TypeError(f"WSKPN.forward takes {len(self.input_names)} tensors "
-                            f"{self.input_names}, got {len(inputs)}")
-        t = dict(zip(self.input_names, inputs))
+        t = bind_inputs(self, inputs)
         accum = t["color"]
         if self.temporal_enabled:
             accum = self.temporal(accum, t[state_input_name(ACCUM)], t[HISTORY])
@@ -498,9 +491,5 @@ def build_wskpn(spec: ModelSpec) -> WSKPN:
     stages = ("temporal", "prediction", "reconstruction") if temporal else ("prediction", "reconstruction")
     if tuple(spec.stages) != stages:
         raise SpecError(f"{where}: stages must be {list(stages)} for type 'wskpn', got {list(spec.stages)}")
-    state = [(s.name, s.channels) for s in spec.state]
-    want = [(ACCUM, 3)] if temporal else []
-    if state != want:
-        raise SpecError(f"{where}: [[state]] must be {want} for type 'wskpn' "
-                        f"({'with' if temporal else 'without'} a temporal stage), got {state}")
+    check_accum_state(spec, temporal, where, "wskpn")
     return WSKPN(params, spec.inputs.layers, spec.inputs.transfer, temporal)
