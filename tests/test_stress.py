@@ -3,7 +3,6 @@ perturbations it is built from, and the failure rule."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import os
 
@@ -17,7 +16,7 @@ from training import stress
 from training.render import procedural
 
 MODELS = [os.path.splitext(os.path.basename(p))[0] for p in shipped_models()]
-EXTRA = ["noisy"] + (["svgf"] if importlib.util.find_spec("runtime.svgf") else [])
+EXTRA = ["noisy", "svgf"]
 PERTURBATION_CASES = ("fireflies", "nan-inf", "cut", "cut-unflagged", "dark", "bright", "1spp")
 RENDERED_CASES = tuple(c[0] for c in stress.RENDERED_CASES)
 
