@@ -30,7 +30,7 @@ import numpy as np
 from runtime import timing, transfer
 from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
-from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_inputs
+from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
 from runtime.temporal import reproject
 
 #: Guide layers stored for the consistency test, when the frame has them.
@@ -171,13 +171,19 @@ class Denoiser:
             if fr.meta.get("cut") and self._state is not None:
                 self.reset("camera cut")
             rep = SanitizeReport()
-            feeds_by_layer = frame_inputs(fr, self.frame_layers, rep)
+            # Each layer is converted to planes and sanitised once, whether the model, the
+            # guide buffers or the reprojection reads it.
+            extra = [g for g in GUIDE_LAYERS if getattr(fr, g) is not None]
+            if self.contract.state and fr.motion is not None:
+                extra.append("motion")
+            planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep)
+            feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
                 kinds = ",".join(sorted(set(rep.nonfinite) | set(rep.negative) | set(rep.clamped)))
                 self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
                           "further sanitising is counted in the report", once_key="sanitize:" + kinds)
-            guides = self._guide_buffers(fr)
+            guides = self._guide_buffers(fr, planes)
             if self._state is None:
                 # A new history: fix its exposure now, so the state stays in one unit.
                 self.exposure = float(exposure_scale(feeds_by_layer["color"]).ravel()[0]) if self.autoexposure else 1.0
@@ -187,59 +193,58 @@ class Denoiser:
                     a = a * np.float32(self.exposure)
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
-            feeds.update(self._state_inputs(fr, guides, h, w))
+            feeds.update(self._state_inputs(planes.get("motion"), guides, h, w))
         with tm.stage(timing.GRAPH):
             outs = self.session.run(None, feeds)
         with tm.stage(timing.POSTPROCESS):
             named = dict(zip([o.name for o in self.session.get_outputs()], outs))
-            image = named["output"][0].transpose(1, 2, 0)
+            out = named["output"][0]                                   # (3, H, W)
             if self.exposure != 1.0:
-                image = image * np.float32(1.0 / self.exposure)
-            if not np.isfinite(image).all():
-                bad = ~np.isfinite(image)
-                image = np.where(bad, feeds_by_layer["color"][0].transpose(1, 2, 0), image)
+                out = out * np.float32(1.0 / self.exposure)
+            lo, hi = out.min(), out.max()                              # NaN/inf propagate
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                bad = ~np.isfinite(out)
+                out = np.where(bad, feeds_by_layer["color"][0], out)
                 self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
                           "values; replaced by the input and state reset", once_key=None)
                 named = None
-            neg = image < 0
-            if neg.any():
+                lo = out.min()
+            if lo < 0:
                 # Radiance cannot be negative; multi-resolution blends (WSKPN Eq. 7) are not
                 # convex and can undershoot at edges, so clamp and count it.
+                neg = out < 0
                 self._say(f"frame {self.report.frames}: model output had negative values; clamped to 0 "
                           "(counted in the report)", once_key="negative-output")
                 self.report.negative_output_values += int(neg.sum())
-                image = np.maximum(image, 0.0)
-            image = np.ascontiguousarray(image, dtype=np.float32)
+                out = np.maximum(out, 0.0)
+            image = from_planes(out.astype(np.float32, copy=False))
         with tm.stage(timing.STATE_UPDATE):
             if named is None:
                 self._state, self._guides = None, None
             else:
                 self._state = {}
                 for st in self.contract.state:
-                    arr = named[st["output"]]
-                    self._state[st["name"]] = np.where(np.isfinite(arr), arr, 0.0).astype(np.float32)
+                    arr = named[st["output"]].astype(np.float32, copy=False)
+                    if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
+                        arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
+                    self._state[st["name"]] = arr
                 self._guides = guides
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
         self.timings.append(tm.ms)
         self.report.frames += 1
         return image
 
-    def _guide_buffers(self, fr: Frame) -> dict[str, np.ndarray]:
-        rep = SanitizeReport()
-        g = {}
-        for name in GUIDE_LAYERS:
-            arr = getattr(fr, name)
-            if arr is not None:
-                from runtime.inputs import sanitize_array
-
-                g[name] = np.ascontiguousarray(sanitize_array(arr, False, name, rep).transpose(2, 0, 1)[None])
+    def _guide_buffers(self, fr: Frame, planes: dict) -> dict[str, np.ndarray]:
+        g = {name: planes[name] for name in GUIDE_LAYERS if name in planes}
         if "depth" not in g:
             # Without depth there is no consistency test: treat every pixel as a hit at unit
             # distance so history follows motion only (documented for plain colour input).
             g["depth"] = np.ones((1, 1, *fr.size), np.float32)
         return g
 
-    def _state_inputs(self, fr: Frame, guides, h: int, w: int) -> dict[str, np.ndarray]:
+    def _state_inputs(self, motion, guides, h: int, w: int) -> dict[str, np.ndarray]:
+        """Reprojected state inputs and the history mask; ``motion`` (1, 2, H, W) sanitised
+        (non-finite -> 0) or None."""
         feeds = {}
         if not self.contract.state:
             return feeds
@@ -248,14 +253,11 @@ class Denoiser:
                 feeds[st["input"]] = np.zeros((1, st["channels"], h, w), np.float32)
             feeds[self.contract.history] = np.zeros((1, 1, h, w), np.float32)
             return feeds
-        if fr.motion is not None:
-            motion = np.nan_to_num(fr.motion, nan=0.0, posinf=0.0, neginf=0.0).transpose(2, 0, 1)[None]
-        else:
+        if motion is None:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)
         names = [st["name"] for st in self.contract.state]
-        warped, history = reproject([self._state[n] for n in names], motion.astype(np.float32),
-                                    guides, self._guides)
+        warped, history = reproject([self._state[n] for n in names], motion, guides, self._guides)
         for st, arr in zip(self.contract.state, warped):
             feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
         feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)

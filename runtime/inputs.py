@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.frames import Frame, FrameError
+from runtime.frames import Frame
 
 #: Radiance above this is clamped when sanitising (units of the renderer; our scenes' emitters
 #: are <= ~100, so only broken samples get here).  Chosen below float16's max (65504) so
@@ -102,10 +102,13 @@ def exposure_scale(color):
 NONFINITE_FILL = {"albedo": 1.0}
 
 
-def sanitize_array(arr: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
-    """Copy of ``arr`` with non-finite values -> :data:`NONFINITE_FILL` (default 0) and, for
-    radiance, negatives -> 0 and values above :data:`MAX_RADIANCE` clamped."""
-    out = np.array(arr, dtype=np.float32, copy=True)
+def _sanitize_inplace(out: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
+    """:func:`sanitize_array` on a float32 array the caller owns (modified in place)."""
+    # A NaN or ±inf makes min or max non-finite: two reductions decide that a frame is clean,
+    # the common case, without the mask passes the repair below needs.
+    lo, hi = out.min(initial=0.0), out.max(initial=0.0)
+    if np.isfinite(lo) and np.isfinite(hi) and (not radiance or (lo >= 0 and hi <= MAX_RADIANCE)):
+        return out
     bad = ~np.isfinite(out)
     if bad.any():
         report.nonfinite[name] = report.nonfinite.get(name, 0) + int(bad.sum())
@@ -120,6 +123,13 @@ def sanitize_array(arr: np.ndarray, radiance: bool, name: str, report: SanitizeR
             report.clamped[name] = report.clamped.get(name, 0) + int(big.sum())
             out[big] = MAX_RADIANCE
     return out
+
+
+def sanitize_array(arr: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
+    """Copy of ``arr`` (float32) with non-finite values -> :data:`NONFINITE_FILL` (default 0)
+    and, for radiance, negatives -> 0 and values above :data:`MAX_RADIANCE` clamped; the counts
+    go to ``report``."""
+    return _sanitize_inplace(np.array(arr, dtype=np.float32, copy=True), radiance, name, report)
 
 
 def camera_axes(meta: dict) -> np.ndarray | None:
@@ -142,17 +152,65 @@ def screen_normals(normal: np.ndarray, meta: dict) -> np.ndarray:
     return (normal @ axes.T).astype(np.float32)
 
 
-def frame_inputs(frame: Frame, layers, report: SanitizeReport | None = None) -> dict[str, np.ndarray]:
-    """The model inputs for ``layers`` as a dict name -> (1, C, H, W) float32, sanitised.
-
-    Raises FrameError naming the frame and the missing layer.
-    """
-    report = SanitizeReport() if report is None else report
-    out = {}
-    for name in layers:
-        arr = frame.layer(name)
-        arr = sanitize_array(arr, name in RADIANCE_LAYERS, name, report)
-        if name == "normal":
-            arr = screen_normals(arr, frame.meta)
-        out[name] = np.ascontiguousarray(arr.transpose(2, 0, 1)[None])
+def screen_normal_planes(normal: np.ndarray, meta: dict) -> np.ndarray:
+    """:func:`screen_normals` for channel-first normals (N, 3, H, W) -> new (N, 3, H, W) array
+    (the input itself when the frame has no camera).  Plane arithmetic: 2x faster than a
+    (H*W, 3) @ (3, 3) product on the driver's CPU."""
+    axes = camera_axes(meta)
+    if axes is None:
+        return normal
+    out = np.empty_like(normal)
+    for i in range(3):
+        np.multiply(normal[:, 0], axes[i, 0], out=out[:, i])
+        out[:, i] += normal[:, 1] * axes[i, 1]
+        out[:, i] += normal[:, 2] * axes[i, 2]
     return out
+
+
+#: Rows per block when converting (H, W, C) layers to (C, H, W): a block's source stays in the
+#: cache while its channels are scattered (1.6 ms vs 3.0 for one strided copy at 720p).
+_TRANSPOSE_ROWS = 16
+
+
+def to_planes(arr: np.ndarray) -> np.ndarray:
+    """(H, W, C) image layer -> new contiguous float32 (1, C, H, W) array."""
+    h, w, c = arr.shape
+    out = np.empty((1, c, h, w), np.float32)
+    if c == 1:
+        out[0, 0] = arr[..., 0]
+        return out
+    for y in range(0, h, _TRANSPOSE_ROWS):
+        out[0, :, y:y + _TRANSPOSE_ROWS] = arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1)
+    return out
+
+
+def from_planes(chw: np.ndarray) -> np.ndarray:
+    """(C, H, W) -> new contiguous (H, W, C) array of the same dtype (the inverse of
+    :func:`to_planes` for one image)."""
+    c, h, w = chw.shape
+    out = np.empty((h, w, c), chw.dtype)
+    for y in range(0, h, _TRANSPOSE_ROWS):
+        out[y:y + _TRANSPOSE_ROWS] = chw[:, y:y + _TRANSPOSE_ROWS].transpose(1, 2, 0)
+    return out
+
+
+def frame_planes(frame: Frame, names, report: SanitizeReport | None = None) -> dict[str, np.ndarray]:
+    """Layers ``names`` of ``frame`` as a dict name -> sanitised (1, C, H, W) float32 arrays,
+    in the frame's own spaces (normals in world space).  Raises FrameError naming the frame
+    and the missing layer."""
+    report = SanitizeReport() if report is None else report
+    return {name: _sanitize_inplace(to_planes(frame.layer(name)), name in RADIANCE_LAYERS, name, report)
+            for name in names}
+
+
+def model_inputs(planes: dict[str, np.ndarray], layers, meta: dict) -> dict[str, np.ndarray]:
+    """Model inputs for ``layers`` from :func:`frame_planes` output: the same arrays, except
+    ``normal``, which models see in screen space (a new array; ``planes`` is left as is)."""
+    return {name: screen_normal_planes(planes[name], meta) if name == "normal" else planes[name]
+            for name in layers}
+
+
+def frame_inputs(frame: Frame, layers, report: SanitizeReport | None = None) -> dict[str, np.ndarray]:
+    """The model inputs for ``layers`` as a dict name -> (1, C, H, W) float32, sanitised,
+    normals in screen space.  Raises FrameError naming the frame and the missing layer."""
+    return model_inputs(frame_planes(frame, layers, report), layers, frame.meta)

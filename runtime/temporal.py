@@ -13,8 +13,6 @@ prev = (x, y) + motion (x right, y down); positions (N, 3, H, W) world space; no
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from runtime.transfer import xp
@@ -59,9 +57,10 @@ def _grid(motion, y_offset: int = 0):
     return xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]
 
 
-#: numpy processes this many output rows at a time: the per-tap temporaries of a band stay in
-#: cache, which at 720p roughly halves the time of whole-frame array ops (memory-bound).
-BAND_ROWS = 32
+#: numpy processes this many output rows at a time, so a band's per-tap temporaries (80 KB
+#: planes at 1280 wide) stay in the core's cache.  Measured at 1280x720: 16 rows 100 ms, 32 rows
+#: 124, 64 rows 139, the whole frame at once 280 (every temporary a fresh page-faulted block).
+BAND_ROWS = 16
 
 
 def reproject(states, motion, cur: dict, prev: dict):
@@ -76,58 +75,101 @@ def reproject(states, motion, cur: dict, prev: dict):
     Returns:
       (warped states list, history (N, 1, H, W) in {0, 1}).  Inconsistent or off-screen taps are
       dropped and the remaining bilinear weights renormalised; pixels with no consistent tap get
-      history 0 and state 0.
+      history 0 and state 0.  numpy and torch give the same result (torch: differentiable
+      w.r.t. the states; numpy: the driver's fast path, :func:`_reproject_numpy`).
     """
-    is_np = xp(motion) is np
-    n, _, h, w = motion.shape
     use_pos = "position" in cur and "position" in prev
     use_nrm = "normal" in cur and "normal" in prev
+    if xp(motion) is np:
+        return _reproject_numpy(states, motion, cur, prev, use_pos, use_nrm)
+    n, _, h, w = motion.shape
     # One gather per tap for every field: the guides and all states stacked along channels.
     fields = [prev["depth"]] + ([prev["position"]] if use_pos else []) + ([prev["normal"]] if use_nrm else []) + list(states)
-    sizes = [f.shape[1] for f in fields]
-    stacked = (np.concatenate(fields, axis=1) if is_np else _torch().cat(fields, dim=1)).reshape(n, sum(sizes), h * w)
-    if not is_np:
-        acc, history = _reproject_rows(stacked, motion, cur, 0, h, use_pos, use_nrm)
-    else:
-        # Bands write straight into the outputs: no whole-frame concatenation afterwards.
-        acc = np.empty((n, sum(st.shape[1] for st in states), h, w), dtype=stacked.dtype)
-        history = np.empty((n, 1, h, w), dtype=motion.dtype)
+    stacked = _torch().cat(fields, dim=1).reshape(n, sum(f.shape[1] for f in fields), h * w)
+    acc, history = _reproject_rows(stacked, motion, cur, 0, h, use_pos, use_nrm)
+    return _split_states(acc, states), history
 
-        def band(y):
-            a, hi = _reproject_rows(stacked, motion[:, :, y:y + BAND_ROWS],
-                                    {k: v[:, :, y:y + BAND_ROWS] for k, v in cur.items()}, y, h, use_pos, use_nrm)
-            acc[:, :, y:y + BAND_ROWS] = a
-            history[:, :, y:y + BAND_ROWS] = hi
 
-        if h * w >= PARALLEL_MIN_PIXELS:
-            list(_pool().map(band, range(0, h, BAND_ROWS)))
-        else:  # small frames: thread hand-offs would cost more than they save
-            for y in range(0, h, BAND_ROWS):
-                band(y)
+def _split_states(acc, states):
     warped, c = [], 0
     for st in states:
         warped.append(acc[:, c:c + st.shape[1]])
         c += st.shape[1]
-    return warped, history
+    return warped
 
 
-#: Frames with at least this many pixels run their bands on the thread pool.  Measured at
-#: 720p: 205 -> 125 ms on two quiet cores of a 16-core Xeon, no change (143 vs 154 ms, noise)
-#: on this project's 2-vCPU machine; below ~512K pixels the hand-offs cost more than they save
-#: (160x120: 3.3 ms serial, 6.7 ms pooled).
-PARALLEL_MIN_PIXELS = 1 << 19
-_POOL = None
+def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool):
+    """numpy :func:`reproject`: the arithmetic of :func:`_reproject_rows`, laid out for speed
+    on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 205 ms
+    with per-tap gathers of a stacked (C, H*W) array over 32-row bands, 100 ms this way).
 
-
-def _pool():
-    """Threads for the numpy bands: numpy releases the GIL in gathers and element-wise ops, so
-    bands run in parallel on every core (the driver's other work is onnxruntime's, not ours)."""
-    global _POOL
-    if _POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=max(1, len(os.sched_getaffinity(0))), thread_name_prefix="reproject")
-    return _POOL
+    * Planar: every guide and state channel is a contiguous (H*W,) plane gathered with one 1-D
+      ``np.take`` per tap, and every test is plane arithmetic.  Gathering along axis 1 of a
+      (C, H*W) stack costs 2-3x more; a channels-last table makes the tests strided (20-40x
+      slower per element).
+    * Bands of :data:`BAND_ROWS` rows keep a band's temporaries in the core's cache.
+    * A tap whose bilinear weight is 0 over a whole band (integer or zero motion: a static
+      camera) is skipped: its consistent weight would be 0 anyway.
+    * Serial: two threads over bands were slower here (GIL hand-offs between many short numpy
+      calls), and onnxruntime's threads take the cores right after.
+    """
+    n, _, h, w = motion.shape
+    n_state = sum(st.shape[1] for st in states)
+    dtype = np.result_type(*[st.dtype for st in states]) if states else motion.dtype
+    acc = np.empty((n, n_state, h, w), dtype=dtype)
+    history = np.empty((n, 1, h, w), dtype=motion.dtype)
+    xs = np.arange(w, dtype=motion.dtype)
+    for b in range(n):
+        guides = [prev["depth"][b, 0]] + ([prev["position"][b, c] for c in range(3)] if use_pos else []) \
+            + ([prev["normal"][b, c] for c in range(3)] if use_nrm else [])
+        guides = [np.ascontiguousarray(g).reshape(-1) for g in guides]
+        planes = [np.ascontiguousarray(st[b, c]).reshape(-1) for st in states for c in range(st.shape[1])]
+        for y in range(0, h, BAND_ROWS):
+            y1 = min(h, y + BAND_ROWS)
+            px = xs + motion[b, 0, y:y1]
+            py = np.arange(y, y1, dtype=motion.dtype)[:, None] + motion[b, 1, y:y1]
+            x0, y0 = np.floor(px), np.floor(py)
+            fx, fy = px - x0, py - y0
+            ix, iy = x0.astype(np.int64), y0.astype(np.int64)
+            base = iy * w + ix
+            in_x = ((ix >= 0) & (ix <= w - 1), (ix >= -1) & (ix <= w - 2))
+            in_y = ((iy >= 0) & (iy <= h - 1), (iy >= -1) & (iy <= h - 2))
+            cur_depth = cur["depth"][b, 0, y:y1]
+            cur_hit = cur_depth > 0
+            if use_pos:
+                cur_pos = cur["position"][b, :, y:y1]
+                tol2 = (POSITION_TOLERANCE * cur_depth) ** 2
+            if use_nrm:
+                cur_nrm = cur["normal"][b, :, y:y1]
+            wsum = np.zeros_like(fx)
+            sums = [np.zeros(fx.shape, dtype=dtype) for _ in planes]
+            for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+                wgt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+                if not wgt.any():
+                    continue
+                # Off-screen taps read some valid pixel (clipped flat index); ``in_x``/``in_y`` drop them.
+                idx = base + (dy * w + dx)
+                g = [np.take(p, idx, mode="clip") for p in guides]
+                ok = in_x[dx] & in_y[dy] & cur_hit & (g[0] > 0)
+                c = 1
+                if use_pos:
+                    d0, d1, d2 = g[1] - cur_pos[0], g[2] - cur_pos[1], g[3] - cur_pos[2]
+                    ok &= (d0 * d0 + d1 * d1 + d2 * d2) <= tol2
+                    c = 4
+                else:
+                    ok &= np.abs(g[0] - cur_depth) <= DEPTH_TOLERANCE * cur_depth
+                if use_nrm:
+                    ok &= (g[c] * cur_nrm[0] + g[c + 1] * cur_nrm[1] + g[c + 2] * cur_nrm[2]) >= NORMAL_COS_TOLERANCE
+                wk = wgt * ok
+                wsum += wk
+                for s, p in zip(sums, planes):
+                    s += wk * np.take(p, idx, mode="clip")
+            hist = (wsum >= MIN_WEIGHT).astype(wsum.dtype)
+            scale = hist / np.maximum(wsum, MIN_WEIGHT)
+            for c, s in enumerate(sums):
+                acc[b, c, y:y1] = s * scale
+            history[b, 0, y:y1] = hist
+    return _split_states(acc, states), history
 
 
 def _reproject_rows(stacked, motion, cur: dict, y_offset: int, h_full: int, use_pos: bool, use_nrm: bool):

@@ -89,6 +89,15 @@ def test_nonfinite_and_negative_input_is_sanitised_not_propagated(model_file):
     assert den.report.sanitized_frames == 1 and any("non-finite" in m for m in msgs)
     out2 = den(_frame(1))
     assert np.isfinite(out2).all()
+    # broken guides and motion of a frame with history: reported, never in the state
+    f3 = _frame(2)
+    f3.motion[4, 4] = np.nan
+    f3.position[5, 5] = -np.inf
+    msgs.clear()
+    out3 = den(f3)
+    assert np.isfinite(out3).all() and all(np.isfinite(v).all() for v in den._state.values())
+    assert den.report.sanitized_frames == 2
+    assert any("non-finite values in motion" in m and "non-finite values in position" in m for m in msgs)
 
 
 def test_missing_layer_and_wrong_shape_are_named(model_file):
@@ -276,3 +285,41 @@ def test_denoise_command_device_and_autoexposure_flags(tmp_path, capsys):
     else:
         err = capsys.readouterr().err
         assert rc == 2 and "no CUDA provider" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("bad,kind", [(np.nan, "nonfinite"), (np.inf, "nonfinite"), (-np.inf, "nonfinite"),
+                                      (-0.5, "negative"), (1e9, "clamped")])
+def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
+    from runtime.inputs import MAX_RADIANCE, SanitizeReport, sanitize_array
+
+    arr = np.random.default_rng(0).random((5, 7, 3), dtype=np.float32)
+    arr[3, 4, 1] = bad
+    rep = SanitizeReport()
+    out = sanitize_array(arr, True, "color", rep)
+    assert getattr(rep, kind) == {"color": 1} and rep.total == 1
+    assert np.isfinite(out).all() and out.min() >= 0 and out.max() <= MAX_RADIANCE
+    assert out[3, 4, 1] == (MAX_RADIANCE if kind == "clamped" else 0.0)
+    np.testing.assert_array_equal(np.delete(out.ravel(), 3 * 21 + 4 * 3 + 1), np.delete(arr.ravel(), 3 * 21 + 4 * 3 + 1))
+    # geometric layers keep negatives and large values; only non-finite ones are replaced
+    rep2 = SanitizeReport()
+    out2 = sanitize_array(arr, False, "position", rep2)
+    assert rep2.total == (1 if kind == "nonfinite" else 0)
+    assert out2[3, 4, 1] == (0.0 if kind == "nonfinite" else np.float32(bad))
+
+
+def test_planes_round_trip_and_screen_normals_agree():
+    from runtime.inputs import from_planes, screen_normal_planes, screen_normals, to_planes
+
+    rng = np.random.default_rng(1)
+    img = rng.random((37, 21, 3), dtype=np.float32)   # not a multiple of the transpose block
+    p = to_planes(img)
+    assert p.shape == (1, 3, 37, 21) and p.flags.c_contiguous
+    np.testing.assert_array_equal(p[0], img.transpose(2, 0, 1))
+    np.testing.assert_array_equal(from_planes(p[0]), img)
+    assert to_planes(img[..., :1]).shape == (1, 1, 37, 21)
+    rot = np.eye(4)
+    rot[:3, :3] = [[0.6, 0.0, -0.8], [0.0, 1.0, 0.0], [0.8, 0.0, 0.6]]
+    meta = {"camera": {"to_world": rot.tolist()}}
+    np.testing.assert_allclose(screen_normal_planes(p, meta)[0], screen_normals(img, meta).transpose(2, 0, 1),
+                               rtol=0, atol=1e-6)
+    assert screen_normal_planes(p, {}) is p

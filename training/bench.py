@@ -116,17 +116,27 @@ def oidn_unet_count(w: int, h: int, in_channels: int = 9) -> dict:
 # Timing
 # ------------------------------------------------------------------------------------------
 
+#: Camera pan of the synthetic timing sequence, pixels per frame: sub-pixel, so reprojection
+#: blends all four bilinear taps as it does for a real camera (an integer pan would let the
+#: driver skip three of them).
+SYNTHETIC_PAN = (0.7, 0.3)
+
+
 def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
-    """A plausible frame: smooth albedo/normals, noisy colour, a slow pan (1 px/frame)."""
+    """A plausible frame: smooth albedo/normals, noisy colour, a slow sub-pixel pan
+    (:data:`SYNTHETIC_PAN`) over a plane 5-6 units away whose world positions move with it,
+    so the reprojection's consistency test passes as on a real surface."""
     rng = np.random.default_rng(seed + t)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     albedo = np.stack([0.5 + 0.3 * np.sin(xx / 17), 0.5 + 0.3 * np.cos(yy / 23), np.full_like(xx, 0.6)], -1)
     normal = np.stack([np.zeros_like(xx), np.zeros_like(xx), -np.ones_like(xx)], -1)
     depth = (5.0 + yy / h)[..., None]
-    position = np.stack([xx + t, yy, depth[..., 0]], -1)
+    footprint = 5.0 / w   # world units per pixel at depth 5 and a ~53 degree field of view
+    position = np.stack([(xx + SYNTHETIC_PAN[0] * t) * footprint, (yy + SYNTHETIC_PAN[1] * t) * footprint,
+                         depth[..., 0]], -1)
     color = albedo * rng.exponential(1.0, (h, w, 3)).astype(np.float32)
-    motion = np.zeros((h, w, 2), np.float32)
-    motion[..., 0] = 1.0
+    motion = np.empty((h, w, 2), np.float32)
+    motion[..., 0], motion[..., 1] = SYNTHETIC_PAN
     return {"color": color.astype(np.float32), "albedo": albedo.astype(np.float32),
             "normal": normal, "depth": depth.astype(np.float32), "position": position.astype(np.float32),
             "motion": motion, "meta": {}}

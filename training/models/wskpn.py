@@ -128,7 +128,11 @@ def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
     if k == 1:
         return x
     r = k // 2
-    x = F.avg_pool2d(x, (1, k), stride=1, padding=(0, r), count_include_pad=True)
+    n, c, h, w = x.shape
+    # The 1×k pass sees every row as a channel: onnxruntime pools channels in parallel, and a
+    # (N, 1, H, W) plane alone runs on one thread (720p, all 48 pools: 62 -> 51 ms).
+    x = F.avg_pool2d(x.reshape(n, c * h, 1, w), (1, k), stride=1, padding=(0, r),
+                     count_include_pad=True).reshape(n, c, h, w)
     return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
 
 
