@@ -41,7 +41,9 @@ def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.
     Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
     multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
     """
-    return color + (history * (1.0 - alpha)) * (prev - color)
+    # The broadcast (N, 1, H, W) factor goes second: onnxruntime's Mul broadcasting its first
+    # input runs 2x slower (720p stage: 5.9 -> 3.1 ms; torch 3.5 ms either way).
+    return color + (prev - color) * (history * (1.0 - alpha))
 
 
 class TemporalStage(nn.Module):
