@@ -13,10 +13,12 @@ temporal filter (``svgf``, the non-neural baseline) and the noisy input.
   README's ``data/test``, ``--seed 2``).  Sequence scores: PSNR over all frames, TRMAE per
   sequence (mean), SSIM, FLIP, SMAPE, relMSE (:mod:`training.evaluate`).
 
-*Speed* in the same run, on a synthetic sequence with history (timing does not depend on the
-content: no data-dependent control flow; fixed seeds): per-stage median ms of the onnxruntime
-driver (profiled: graph stages get their own rows) and of torch eager (forward hooks), whole
-frame ms of OIDN and SVGF, at each ``--sizes``; the noisy input costs 0 ms.
+*Speed* in the same run, on a synthetic sequence with history (:func:`synthetic_frame`, fixed
+seeds; timing hardly depends on the content: the one data-dependent branch, the reprojection
+skipping bilinear taps of zero weight, never fires on its sub-pixel pan): per-stage median ms
+of the onnxruntime driver (profiled: graph stages get their own rows) and of torch eager
+(forward hooks), whole frame ms of OIDN and SVGF, at each ``--sizes``, all methods
+interleaved frame by frame (:func:`time_interleaved`); the noisy input costs 0 ms.
 
 *Compute*: FLOPs/FMAs and parameters of each model at each size (:mod:`runtime.flops`), the
 achieved GFLOP/s (FLOPs / graph wall time) against this CPU's peak
@@ -142,9 +144,8 @@ def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
             "motion": motion, "meta": {}}
 
 
-def bench_onnx(path: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0,
-               device: str = "cpu"):
-    """(driver, {stage: median ms}) of the runtime driver on the synthetic sequence.
+def onnx_driver(path: str, threads: int, device: str = "cpu"):
+    """The runtime driver of ``path`` set up for timing (graph profiled on the CPU).
 
     On ``device="cuda"`` (onnxruntime's CUDA provider) the graph is not profiled: CUDA kernels
     run asynchronously, so per-node times would be launch times; the graph row is the run()
@@ -157,29 +158,35 @@ def bench_onnx(path: str, w: int, h: int, frames: int, warmup: int, threads: int
     if device == "cuda" and den.session.get_providers()[0] != "CUDAExecutionProvider":
         raise ValueError(f"{path}: onnxruntime has no CUDA provider here (providers: "
                            f"{', '.join(den.session.get_providers())}); install onnxruntime-gpu")
-    for t in range(warmup + frames):
-        den(synthetic_frame(w, h, t, seed))
-    rows = den.stage_times()[warmup:]
-    return den, timing.medians(rows)
+    return den
 
 
-def bench_method(name: str, w: int, h: int, frames: int, warmup: int, threads: int, seed: int = 0,
-                 device: str = "cpu"):
-    """Median whole-frame ms of a built-in method (:func:`runtime.methods.load_method`) on the
-    synthetic sequence (frames prepared outside the timed call); 0 for ``noisy``."""
+def builtin_method(name: str, threads: int, device: str = "cpu"):
+    """A built-in method (:func:`runtime.methods.load_method`) for timing; None for ``noisy``."""
     from runtime.methods import load_method
 
     if name == "noisy":
-        return 0.0
-    m = oidn_cuda(name[len("oidn-"):]) if device == "cuda" and name.startswith("oidn-") else \
+        return None
+    return oidn_cuda(name[len("oidn-"):]) if device == "cuda" and name.startswith("oidn-") else \
         load_method(name, threads=threads, device=device)
-    ts = []
+
+
+def time_interleaved(runners: dict, w: int, h: int, frames: int, warmup: int, seed: int = 0) -> dict:
+    """Run every method of ``runners`` (name -> callable(frame)) on the synthetic sequence,
+    interleaved frame by frame (frame t goes through every method before frame t + 1, the
+    order rotating), so that a machine slowing down or speeding up mid-run affects every method
+    alike and their ratios stay honest.  Returns name -> list of whole-call ms per frame
+    (frames prepared outside the timed call)."""
+    names = list(runners)
+    ms: dict[str, list] = {n: [] for n in names}
     for t in range(warmup + frames):
-        fr = synthetic_frame(w, h, t, seed)
-        t0 = time.perf_counter()
-        m(fr)
-        ts.append(1e3 * (time.perf_counter() - t0))
-    return statistics.median(ts[warmup:])
+        k = t % max(1, len(names))
+        for n in names[k:] + names[:k]:
+            fr = synthetic_frame(w, h, t, seed)
+            t0 = time.perf_counter()
+            runners[n](fr)
+            ms[n].append(1e3 * (time.perf_counter() - t0))
+    return ms
 
 
 def oidn_cuda(quality: str):
@@ -388,6 +395,8 @@ def quality_part(models, builtins, stills, data, quick, threads, log):
 
 
 def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, seed, log, device="cpu"):
+    """Per-stage and whole-frame medians of every model and built-in method at every size:
+    all methods timed interleaved (:func:`time_interleaved`), then torch eager per model."""
     from training.specs import build_model, parse_spec
 
     if torch_too:
@@ -398,8 +407,13 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
     rows, frame_ms = [], {}
     for w, h in sizes:
         size = f"{w}x{h}"
-        for path in models:
-            den, ort_med = bench_onnx(path, w, h, frames, warmup, threads, seed, device)
+        dens = {path: onnx_driver(path, threads, device) for path in models}
+        methods = {b: builtin_method(b, threads, device) for b in builtins}
+        runners = {**{("model", p): d for p, d in dens.items()},
+                   **{("method", b): m for b, m in methods.items() if m is not None}}
+        ms = time_interleaved(runners, w, h, frames, warmup, seed)
+        for path, den in dens.items():
+            ort_med = timing.medians(den.stage_times()[warmup:])
             c = den.contract
             stages = [s["name"] for s in c.stages]
             torch_med = {}
@@ -416,11 +430,12 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
             log(f"{c.spec_name} {size}: onnxruntime {ort_med[timing.TOTAL]:.1f} ms/frame"
                 + (f", torch graph {torch_med[timing.GRAPH]:.1f} ms" if torch_med else ""))
         for b in builtins:
-            ms = bench_method(b, w, h, frames, warmup, threads, seed, device)
-            frame_ms[(b, size)] = ms
+            m = statistics.median(ms[("method", b)][warmup:]) if methods[b] is not None else 0.0
+            frame_ms[(b, size)] = m
             rows.append({"model": b, "size": size, "stage": timing.TOTAL, "onnxruntime_ms": None,
-                         "torch_ms": None, "paper_ms": None, "method_ms": ms})
-            log(f"{b} {size}: {ms:.1f} ms/frame")
+                         "torch_ms": None, "paper_ms": None, "method_ms": m})
+            log(f"{b} {size}: {m:.1f} ms/frame")
+        del dens, methods, runners
     return rows, frame_ms
 
 
@@ -633,7 +648,9 @@ def markdown(res) -> str:
     L = ["# mcdenoise bench", "",
          f"Written by `{res['command']}` in {res['seconds']:.0f} s. Machine: {res['device']}, "
          f"{res['threads']} threads. Times: median of {res['frames']} frames after {res['warmup']} "
-         "warm-up frames of a synthetic sequence with history, every number from this one run. "
+         "warm-up frames of a synthetic sequence with history (a sub-pixel pan), every number "
+         "from this one run; the methods run interleaved frame by frame, so machine drift hits "
+         "all alike. "
          "onnxruntime and torch use the threads stated; Open Image Denoise runs its own thread pool "
          "(every core); SVGF is numpy.", ""]
     order = _method_order(res)
