@@ -37,6 +37,7 @@ frame set rendered at 64x64 with ``--seed 4``): a couple of minutes on 2 cores.
 from __future__ import annotations
 
 import csv
+import gc
 import os
 import statistics
 import subprocess
@@ -171,6 +172,13 @@ def builtin_method(name: str, threads: int, device: str = "cpu"):
         load_method(name, threads=threads, device=device)
 
 
+#: Pause before each timed call of :func:`time_interleaved`: onnxruntime's and Open Image
+#: Denoise's worker threads spin for a while after a call, and would otherwise steal cores
+#: from the next method.  (A longer pause also lets caches go cold and the vCPUs idle: with
+#: 50 ms every method got slower, wskpn-3's numpy stages by about a quarter.)
+SETTLE_S = 0.01
+
+
 def time_interleaved(runners: dict, w: int, h: int, frames: int, warmup: int, seed: int = 0) -> dict:
     """Run every method of ``runners`` (name -> callable(frame)) on the synthetic sequence,
     interleaved frame by frame (frame t goes through every method before frame t + 1, the
@@ -183,6 +191,7 @@ def time_interleaved(runners: dict, w: int, h: int, frames: int, warmup: int, se
         k = t % max(1, len(names))
         for n in names[k:] + names[:k]:
             fr = synthetic_frame(w, h, t, seed)
+            time.sleep(SETTLE_S)
             t0 = time.perf_counter()
             runners[n](fr)
             ms[n].append(1e3 * (time.perf_counter() - t0))
@@ -412,9 +421,11 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
         runners = {**{("model", p): d for p, d in dens.items()},
                    **{("method", b): m for b, m in methods.items() if m is not None}}
         ms = time_interleaved(runners, w, h, frames, warmup, seed)
-        for path, den in dens.items():
-            ort_med = timing.medians(den.stage_times()[warmup:])
-            c = den.contract
+        results = {path: (den.contract, timing.medians(den.stage_times()[warmup:])) for path, den in dens.items()}
+        # torch eager alone, after the other methods' sessions and thread pools are released
+        del dens, methods, runners
+        gc.collect()
+        for path, (c, ort_med) in results.items():
             stages = [s["name"] for s in c.stages]
             torch_med = {}
             if torch_too:
@@ -430,12 +441,11 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
             log(f"{c.spec_name} {size}: onnxruntime {ort_med[timing.TOTAL]:.1f} ms/frame"
                 + (f", torch graph {torch_med[timing.GRAPH]:.1f} ms" if torch_med else ""))
         for b in builtins:
-            m = statistics.median(ms[("method", b)][warmup:]) if methods[b] is not None else 0.0
+            m = statistics.median(ms[("method", b)][warmup:]) if ("method", b) in ms else 0.0
             frame_ms[(b, size)] = m
             rows.append({"model": b, "size": size, "stage": timing.TOTAL, "onnxruntime_ms": None,
                          "torch_ms": None, "paper_ms": None, "method_ms": m})
             log(f"{b} {size}: {m:.1f} ms/frame")
-        del dens, methods, runners
     return rows, frame_ms
 
 

@@ -129,10 +129,23 @@ def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
         return x
     r = k // 2
     n, c, h, w = x.shape
-    # The 1×k pass sees every row as a channel: onnxruntime pools channels in parallel, and a
-    # (N, 1, H, W) plane alone runs on one thread (720p, all 48 pools: 62 -> 51 ms).
+    # The 1×k pass sees every row as a channel: onnxruntime pools channels in parallel.
     x = F.avg_pool2d(x.reshape(n, c * h, 1, w), (1, k), stride=1, padding=(0, r),
                      count_include_pad=True).reshape(n, c, h, w)
+    return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
+
+
+def _plane_window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
+    """:func:`_window_mean` of one plane, (N, 1, H, W) -> same, as the deployed graph runs it."""
+    if k == 1:
+        return x
+    r = k // 2
+    # Rows as channels for the 1×k pass, so onnxruntime pools them in parallel (a lone
+    # (N, 1, H, W) plane runs on one thread).  Squeeze/unsqueeze move the size-1 axis without
+    # a copy and, unlike a dynamic reshape, export no shape arithmetic (5 ms of tiny ops per
+    # 720p frame over the 48 pools); a Transpose would copy (24 ms).
+    x = F.avg_pool2d(x.squeeze(1).unsqueeze(2), (1, k), stride=1, padding=(0, r),
+                     count_include_pad=True).squeeze(2).unsqueeze(1)
     return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
 
 
@@ -201,9 +214,9 @@ def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor
         acc = [None] * len(planes)
         for i, k in enumerate(kernel_sizes):
             w = weights[:, i:i + 1]
-            scale = a[:, i:i + 1] / _window_mean(w, k)   # α_i / boxsum_k(w)
+            scale = a[:, i:i + 1] / _plane_window_mean(w, k)   # α_i / boxsum_k(w)
             for c, p in enumerate(planes):
-                term = _window_mean(w * p, k) * scale
+                term = _plane_window_mean(w * p, k) * scale
                 acc[c] = term if acc[c] is None else acc[c] + term
         inv = 1.0 / a.sum(dim=1, keepdim=True)
         return torch.cat([t * inv for t in acc], dim=1)
