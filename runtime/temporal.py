@@ -29,37 +29,9 @@ DEPTH_TOLERANCE = 0.1
 MIN_WEIGHT = 1e-3
 
 
-def _floor(x):
-    return np.floor(x) if xp(x) is np else x.floor()
-
-
-def _gather(flat, idx):
-    """flat (N, C, L), idx (N, 1, M) int -> (N, C, M)."""
-    n, c = flat.shape[:2]
-    if xp(flat) is np:
-        return np.stack([np.take(flat[i], idx[i, 0], axis=1, mode="clip") for i in range(n)])
-    return flat.gather(2, idx.expand(n, c, idx.shape[-1]))
-
-
-def _to_index(v):
-    return v.astype(np.int64) if xp(v) is np else v.long()
-
-
-def _grid(motion, y_offset: int = 0):
-    n, _, h, w = motion.shape
-    if xp(motion) is np:
-        ys, xs = np.meshgrid(np.arange(y_offset, y_offset + h, dtype=np.float32),
-                             np.arange(w, dtype=np.float32), indexing="ij")
-    else:
-        torch = _torch()
-        ys, xs = torch.meshgrid(torch.arange(y_offset, y_offset + h, dtype=motion.dtype, device=motion.device),
-                                torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
-    return xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]
-
-
 #: numpy processes this many output rows at a time, so a band's per-tap temporaries (80 KB
-#: planes at 1280 wide) stay in the core's cache.  Measured at 1280x720: 16 rows 100 ms, 32 rows
-#: 124, 64 rows 139, the whole frame at once 280 (every temporary a fresh page-faulted block).
+#: planes at 1280 wide) stay in the core's cache.  Measured at 1280x720 (before the buffers
+#: were reused): 16 rows 100 ms, 32 rows 124, 64 rows 139, the whole frame at once 280.
 BAND_ROWS = 16
 
 
@@ -100,14 +72,16 @@ def _split_states(acc, states):
 
 def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool):
     """numpy :func:`reproject`: the arithmetic of :func:`_reproject_rows`, laid out for speed
-    on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 205 ms
-    with per-tap gathers of a stacked (C, H*W) array over 32-row bands, 100 ms this way).
+    on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 165 ms
+    with per-tap gathers of a stacked (C, H*W) array over 32-row bands on two threads, 125 ms
+    planar as below, 100 ms with the preallocated buffers).
 
     * Planar: every guide and state channel is a contiguous (H*W,) plane gathered with one 1-D
       ``np.take`` per tap, and every test is plane arithmetic.  Gathering along axis 1 of a
       (C, H*W) stack costs 2-3x more; a channels-last table makes the tests strided (20-40x
       slower per element).
-    * Bands of :data:`BAND_ROWS` rows keep a band's temporaries in the core's cache.
+    * Bands of :data:`BAND_ROWS` rows keep a band's temporaries in the core's cache, and the
+      temporaries are preallocated and reused (``out=``): no allocation per operation.
     * A tap whose bilinear weight is 0 over a whole band (integer or zero motion: a static
       camera) is skipped: its consistent weight would be 0 anyway.
     * Serial: two threads over bands were slower here (GIL hand-offs between many short numpy
@@ -116,113 +90,145 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool):
     n, _, h, w = motion.shape
     n_state = sum(st.shape[1] for st in states)
     dtype = np.result_type(*[st.dtype for st in states]) if states else motion.dtype
+    ftype = motion.dtype
     acc = np.empty((n, n_state, h, w), dtype=dtype)
-    history = np.empty((n, 1, h, w), dtype=motion.dtype)
-    xs = np.arange(w, dtype=motion.dtype)
+    history = np.empty((n, 1, h, w), dtype=ftype)
+    xs = np.arange(w, dtype=ftype)
+    rows = min(BAND_ROWS, h)
+    buf = lambda dt=ftype: np.empty((rows, w), dtype=dt)  # noqa: E731
+    wgt, gx, gy, wsum, t0, t1, t2 = (buf() for _ in range(7))
+    ok, tmp_ok = buf(bool), buf(bool)
+    idx = buf(np.int64)
+    g = [buf() for _ in range(1 + 3 * use_pos + 3 * use_nrm)]
+    sums = [buf(dtype) for _ in range(n_state)]
+    tap = buf(dtype)
     for b in range(n):
         guides = [prev["depth"][b, 0]] + ([prev["position"][b, c] for c in range(3)] if use_pos else []) \
             + ([prev["normal"][b, c] for c in range(3)] if use_nrm else [])
-        guides = [np.ascontiguousarray(g).reshape(-1) for g in guides]
+        guides = [np.ascontiguousarray(p).reshape(-1) for p in guides]
         planes = [np.ascontiguousarray(st[b, c]).reshape(-1) for st in states for c in range(st.shape[1])]
         for y in range(0, h, BAND_ROWS):
             y1 = min(h, y + BAND_ROWS)
+            r = y1 - y
+            sl = (slice(0, r), slice(None))
             px = xs + motion[b, 0, y:y1]
-            py = np.arange(y, y1, dtype=motion.dtype)[:, None] + motion[b, 1, y:y1]
+            py = np.arange(y, y1, dtype=ftype)[:, None] + motion[b, 1, y:y1]
             x0, y0 = np.floor(px), np.floor(py)
             fx, fy = px - x0, py - y0
+            np.subtract(1, fx, out=gx[sl])
+            np.subtract(1, fy, out=gy[sl])
             ix, iy = x0.astype(np.int64), y0.astype(np.int64)
             base = iy * w + ix
-            in_x = ((ix >= 0) & (ix <= w - 1), (ix >= -1) & (ix <= w - 2))
-            in_y = ((iy >= 0) & (iy <= h - 1), (iy >= -1) & (iy <= h - 2))
             cur_depth = cur["depth"][b, 0, y:y1]
             cur_hit = cur_depth > 0
+            in_x = ((ix >= 0) & (ix <= w - 1), (ix >= -1) & (ix <= w - 2))
+            in_y = (((iy >= 0) & (iy <= h - 1)) & cur_hit, ((iy >= -1) & (iy <= h - 2)) & cur_hit)
             if use_pos:
                 cur_pos = cur["position"][b, :, y:y1]
                 tol2 = (POSITION_TOLERANCE * cur_depth) ** 2
+            else:
+                tol_d = DEPTH_TOLERANCE * cur_depth
             if use_nrm:
                 cur_nrm = cur["normal"][b, :, y:y1]
-            wsum = np.zeros_like(fx)
-            sums = [np.zeros(fx.shape, dtype=dtype) for _ in planes]
+            ws = wsum[sl]
+            ws.fill(0)
+            for s in sums:
+                s[sl].fill(0)
             for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
-                wgt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
-                if not wgt.any():
+                wk = wgt[sl]
+                np.multiply(fx if dx else gx[sl], fy if dy else gy[sl], out=wk)
+                if not wk.any():
                     continue
-                # Off-screen taps read some valid pixel (clipped flat index); ``in_x``/``in_y`` drop them.
-                idx = base + (dy * w + dx)
-                g = [np.take(p, idx, mode="clip") for p in guides]
-                ok = in_x[dx] & in_y[dy] & cur_hit & (g[0] > 0)
+                # Off-screen taps read some valid pixel (wrapped flat index: "wrap" gathers faster than "clip"); ``in_x``/``in_y`` drop them.
+                ik = idx[sl]
+                np.add(base, dy * w + dx, out=ik)
+                gk = [np.take(p, ik, mode="wrap", out=q[sl]) for p, q in zip(guides, g)]
+                o, to = ok[sl], tmp_ok[sl]
+                np.logical_and(in_x[dx], in_y[dy], out=o)
+                np.greater(gk[0], 0, out=to)
+                o &= to
+                a, c2, d = t0[sl], t1[sl], t2[sl]
                 c = 1
                 if use_pos:
-                    d0, d1, d2 = g[1] - cur_pos[0], g[2] - cur_pos[1], g[3] - cur_pos[2]
-                    ok &= (d0 * d0 + d1 * d1 + d2 * d2) <= tol2
+                    np.subtract(gk[1], cur_pos[0], out=a)
+                    np.multiply(a, a, out=a)
+                    for j in (1, 2):
+                        np.subtract(gk[1 + j], cur_pos[j], out=d)
+                        np.multiply(d, d, out=d)
+                        a += d
+                    np.less_equal(a, tol2, out=to)
+                    o &= to
                     c = 4
                 else:
-                    ok &= np.abs(g[0] - cur_depth) <= DEPTH_TOLERANCE * cur_depth
+                    np.subtract(gk[0], cur_depth, out=a)
+                    np.abs(a, out=a)
+                    np.less_equal(a, tol_d, out=to)
+                    o &= to
                 if use_nrm:
-                    ok &= (g[c] * cur_nrm[0] + g[c + 1] * cur_nrm[1] + g[c + 2] * cur_nrm[2]) >= NORMAL_COS_TOLERANCE
-                wk = wgt * ok
-                wsum += wk
+                    np.multiply(gk[c], cur_nrm[0], out=c2)
+                    for j in (1, 2):
+                        np.multiply(gk[c + j], cur_nrm[j], out=d)
+                        c2 += d
+                    np.greater_equal(c2, NORMAL_COS_TOLERANCE, out=to)
+                    o &= to
+                wk *= o
+                ws += wk
+                tk = tap[sl]
                 for s, p in zip(sums, planes):
-                    s += wk * np.take(p, idx, mode="clip")
-            hist = (wsum >= MIN_WEIGHT).astype(wsum.dtype)
-            scale = hist / np.maximum(wsum, MIN_WEIGHT)
+                    np.take(p, ik, mode="wrap", out=tk)
+                    tk *= wk
+                    s[sl] += tk
+            hist = (ws >= MIN_WEIGHT).astype(ftype)
+            scale = hist / np.maximum(ws, MIN_WEIGHT)
             for c, s in enumerate(sums):
-                acc[b, c, y:y1] = s * scale
+                np.multiply(s[sl], scale, out=acc[b, c, y:y1])
             history[b, 0, y:y1] = hist
     return _split_states(acc, states), history
 
 
 def _reproject_rows(stacked, motion, cur: dict, y_offset: int, h_full: int, use_pos: bool, use_nrm: bool):
-    """:func:`reproject` for output rows y_offset .. y_offset + motion.shape[2] of a frame of
-    height ``h_full``; ``stacked`` (N, C, H_full * W) holds prev depth [, position][, normal],
-    then the states.  Returns (warped stacked states (N, C_states, rows, W), history)."""
-    is_np = xp(motion) is np
+    """torch :func:`reproject` for output rows y_offset .. y_offset + motion.shape[2] of a frame
+    of height ``h_full``; ``stacked`` (N, C, H_full * W) holds prev depth [, position][, normal],
+    then the states.  Returns (warped stacked states (N, C_states, rows, W), history).  The
+    numpy twin, :func:`_reproject_numpy`, must compute the same."""
+    torch = _torch()
     n, _, h, w = motion.shape
-    px, py = _grid(motion, y_offset)
-    x0, y0 = _floor(px), _floor(py)
+    ys, xs = torch.meshgrid(torch.arange(y_offset, y_offset + h, dtype=motion.dtype, device=motion.device),
+                            torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
+    px, py = xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]
+    x0, y0 = px.floor(), py.floor()
     fx, fy = px - x0, py - y0
     cur_depth = cur["depth"]
     cur_hit = cur_depth > 0
     if use_pos:
         tol2 = (POSITION_TOLERANCE * cur_depth) ** 2
     n_guides = 1 + 3 * use_pos + 3 * use_nrm
-
-    def csum(a):
-        return a.sum(1, keepdims=True) if is_np else a.sum(1, keepdim=True)
-
+    n_fields = stacked.shape[1]
     wsum = 0.0
     acc = None
     for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
         tx, ty = x0 + dx, y0 + dy
         wgt = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
         inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h_full - 1)
-        tx_c = tx.clip(0, w - 1) if is_np else tx.clamp(0, w - 1)
-        ty_c = ty.clip(0, h_full - 1) if is_np else ty.clamp(0, h_full - 1)
-        idx = _to_index(ty_c * w + tx_c).reshape(n, 1, h * w)
-        taps = _gather(stacked, idx).reshape(n, stacked.shape[1], h, w)
+        idx = (ty.clamp(0, h_full - 1) * w + tx.clamp(0, w - 1)).long().reshape(n, 1, h * w)
+        taps = stacked.gather(2, idx.expand(n, n_fields, h * w)).reshape(n, n_fields, h, w)
         p_depth = taps[:, 0:1]
         c = 1
         ok = inside & cur_hit & (p_depth > 0)
         if use_pos:
             d = taps[:, c:c + 3] - cur["position"]
             c += 3
-            ok = ok & (csum(d * d) <= tol2)
+            ok = ok & ((d * d).sum(1, keepdim=True) <= tol2)
         else:
-            ok = ok & ((p_depth - cur_depth).__abs__() <= DEPTH_TOLERANCE * cur_depth)
+            ok = ok & ((p_depth - cur_depth).abs() <= DEPTH_TOLERANCE * cur_depth)
         if use_nrm:
-            ok = ok & (csum(taps[:, c:c + 3] * cur["normal"]) >= NORMAL_COS_TOLERANCE)
-        wk = wgt * (ok.astype(wgt.dtype) if is_np else ok.to(wgt.dtype))
+            ok = ok & ((taps[:, c:c + 3] * cur["normal"]).sum(1, keepdim=True) >= NORMAL_COS_TOLERANCE)
+        wk = wgt * ok.to(wgt.dtype)
         wsum = wsum + wk
         contrib = wk * taps[:, n_guides:]
         acc = contrib if acc is None else acc + contrib
-    has = wsum >= MIN_WEIGHT
-    if is_np:
-        history = has.astype(wsum.dtype)
-        scale = history / np.maximum(wsum, MIN_WEIGHT)
-    else:
-        history = has.to(wsum.dtype)
-        scale = history / wsum.clamp(min=MIN_WEIGHT)
-    return acc * scale, history
+    history = (wsum >= MIN_WEIGHT).to(wsum.dtype)
+    return acc * (history / wsum.clamp(min=MIN_WEIGHT)), history
 
 
 def _torch():
