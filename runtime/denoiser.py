@@ -85,6 +85,10 @@ class Denoiser:
         self._profile_rows: list | None = None
         self._state: dict[str, np.ndarray] | None = None
         self._guides: dict[str, np.ndarray] | None = None
+        #: Reused input planes (:func:`runtime.inputs.frame_planes`), two sets, and the index
+        #: of the set holding ``_guides``.
+        self._plane_buffers: tuple[dict, dict] = ({}, {})
+        self._guides_set = 0
         self._size: tuple[int, int] | None = None
         names = {i.name for i in session.get_inputs()}
         self.frame_layers = [i["layer"] for i in contract.inputs if i["name"] in names and i.get("layer")]
@@ -176,7 +180,11 @@ class Denoiser:
             extra = [g for g in GUIDE_LAYERS if getattr(fr, g) is not None]
             if self.contract.state and fr.motion is not None:
                 extra.append("motion")
-            planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep)
+            # Two buffer sets: this frame fills the one the kept previous guides are not in
+            # (also after a frame that failed half-way).
+            buffer_set = 1 - self._guides_set
+            planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
+                                  buffers=self._plane_buffers[buffer_set])
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
@@ -228,7 +236,7 @@ class Denoiser:
                     if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
                         arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
                     self._state[st["name"]] = arr
-                self._guides = guides
+                self._guides, self._guides_set = guides, buffer_set
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
         self.timings.append(tm.ms)
         self.report.frames += 1

@@ -102,11 +102,14 @@ def exposure_scale(color):
 NONFINITE_FILL = {"albedo": 1.0}
 
 
-def _sanitize_inplace(out: np.ndarray, radiance: bool, name: str, report: SanitizeReport) -> np.ndarray:
-    """:func:`sanitize_array` on a float32 array the caller owns (modified in place)."""
+def _sanitize_inplace(out: np.ndarray, radiance: bool, name: str, report: SanitizeReport,
+                      lo=None, hi=None) -> np.ndarray:
+    """:func:`sanitize_array` on a float32 array the caller owns (modified in place); ``lo``,
+    ``hi``: its min and max when the caller has them already."""
     # A NaN or ±inf makes min or max non-finite: two reductions decide that a frame is clean,
     # the common case, without the mask passes the repair below needs.
-    lo, hi = out.min(initial=0.0), out.max(initial=0.0)
+    if lo is None or hi is None:
+        lo, hi = out.min(initial=0.0), out.max(initial=0.0)
     if np.isfinite(lo) and np.isfinite(hi) and (not radiance or (lo >= 0 and hi <= MAX_RADIANCE)):
         return out
     bad = ~np.isfinite(out)
@@ -172,16 +175,31 @@ def screen_normal_planes(normal: np.ndarray, meta: dict) -> np.ndarray:
 _TRANSPOSE_ROWS = 16
 
 
-def to_planes(arr: np.ndarray) -> np.ndarray:
-    """(H, W, C) image layer -> new contiguous float32 (1, C, H, W) array."""
+def to_planes(arr: np.ndarray, out: np.ndarray | None = None, extrema: list | None = None) -> np.ndarray:
+    """(H, W, C) image layer -> contiguous float32 (1, C, H, W) array: ``out`` when given (of
+    that shape and dtype), else a new one.  ``extrema``: a list that receives [min, max] of the
+    values (NaN when there is a NaN), taken block by block while the block is in cache."""
     h, w, c = arr.shape
-    out = np.empty((1, c, h, w), np.float32)
-    if c == 1:
-        out[0, 0] = arr[..., 0]
-        return out
+    if out is None or out.shape != (1, c, h, w) or out.dtype != np.float32:
+        out = np.empty((1, c, h, w), np.float32)
+    los, his = [], []
     for y in range(0, h, _TRANSPOSE_ROWS):
-        out[0, :, y:y + _TRANSPOSE_ROWS] = arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1)
+        block = out[0, :, y:y + _TRANSPOSE_ROWS]
+        block[...] = arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1)
+        if extrema is not None:
+            los.append(block.min())
+            his.append(block.max())
+    if extrema is not None:
+        extrema[:] = [min(los, default=0.0, key=_nan_first), max(his, default=0.0, key=_nan_last)]
     return out
+
+
+def _nan_first(v):
+    return (not np.isnan(v), v)
+
+
+def _nan_last(v):
+    return (np.isnan(v), v)
 
 
 def from_planes(chw: np.ndarray) -> np.ndarray:
@@ -189,18 +207,28 @@ def from_planes(chw: np.ndarray) -> np.ndarray:
     :func:`to_planes` for one image)."""
     c, h, w = chw.shape
     out = np.empty((h, w, c), chw.dtype)
-    for y in range(0, h, _TRANSPOSE_ROWS):
-        out[y:y + _TRANSPOSE_ROWS] = chw[:, y:y + _TRANSPOSE_ROWS].transpose(1, 2, 0)
+    flat = out.reshape(h * w, c)
+    # One strided write per channel: 2.0 ms at 720p, where row blocks (as in to_planes) take 4-5.
+    for i in range(c):
+        flat[:, i] = chw[i].reshape(-1)
     return out
 
 
-def frame_planes(frame: Frame, names, report: SanitizeReport | None = None) -> dict[str, np.ndarray]:
+def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
+                 buffers: dict | None = None) -> dict[str, np.ndarray]:
     """Layers ``names`` of ``frame`` as a dict name -> sanitised (1, C, H, W) float32 arrays,
-    in the frame's own spaces (normals in world space).  Raises FrameError naming the frame
-    and the missing layer."""
+    in the frame's own spaces (normals in world space).  ``buffers`` (name -> array, updated
+    here) lets a caller reuse last time's arrays, which at 720p saves the page faults of fresh
+    11 MB blocks (~2 ms a layer).  Raises FrameError naming the frame and the missing layer."""
     report = SanitizeReport() if report is None else report
-    return {name: _sanitize_inplace(to_planes(frame.layer(name)), name in RADIANCE_LAYERS, name, report)
-            for name in names}
+    out = {}
+    for name in names:
+        ext: list = []
+        arr = to_planes(frame.layer(name), None if buffers is None else buffers.get(name), ext)
+        if buffers is not None:
+            buffers[name] = arr
+        out[name] = _sanitize_inplace(arr, name in RADIANCE_LAYERS, name, report, *ext)
+    return out
 
 
 def model_inputs(planes: dict[str, np.ndarray], layers, meta: dict) -> dict[str, np.ndarray]:

@@ -305,6 +305,17 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     out2 = sanitize_array(arr, False, "position", rep2)
     assert rep2.total == (1 if kind == "nonfinite" else 0)
     assert out2[3, 4, 1] == (0.0 if kind == "nonfinite" else np.float32(bad))
+    # the driver's path: planes with the extrema taken block by block, in a tall frame
+    from runtime.frames import Frame
+    from runtime.inputs import frame_planes
+
+    tall = np.random.default_rng(1).random((53, 7, 3), dtype=np.float32)
+    tall[40, 2, 0] = bad
+    rep3 = SanitizeReport()
+    planes = frame_planes(Frame(color=tall, position=tall.copy()), ["color", "position"], rep3)
+    assert getattr(rep3, kind)["color"] == 1 and rep3.nonfinite.get("position", 0) == (kind == "nonfinite")
+    assert planes["color"][0, 0, 40, 2] == (MAX_RADIANCE if kind == "clamped" else 0.0)
+    np.testing.assert_array_equal(planes["position"][0], sanitize_array(tall, False, "position", SanitizeReport()).transpose(2, 0, 1))
 
 
 def test_planes_round_trip_and_screen_normals_agree():
@@ -323,3 +334,29 @@ def test_planes_round_trip_and_screen_normals_agree():
     np.testing.assert_allclose(screen_normal_planes(p, meta)[0], screen_normals(img, meta).transpose(2, 0, 1),
                                rtol=0, atol=1e-6)
     assert screen_normal_planes(p, {}) is p
+
+
+def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
+    """The driver reuses two sets of input planes; the previous frame's guides must reach the
+    reprojection intact, also when the frame before failed half-way."""
+    import runtime.denoiser as rd
+
+    seen = []
+    real = rd.reproject
+    monkeypatch.setattr(rd, "reproject", lambda s, m, cur, prev: (seen.append({k: v.copy() for k, v in prev.items()}),
+                                                                 real(s, m, cur, prev))[1])
+    path, _, _ = model_file
+    den = Denoiser.load(path, log=lambda m: None)
+    frames = [_frame(t) for t in range(4)]
+    den(frames[0])
+    den(frames[1])
+    bad = _frame(9)
+    bad.albedo = bad.albedo[:, :, :2]          # wrong channel count: rejected, no state change
+    with pytest.raises(FrameError):
+        den(bad)
+    den(frames[2])
+    den(frames[3])
+    assert len(seen) == 3
+    for prev_frame, got in zip(frames[:3], seen):
+        np.testing.assert_array_equal(got["position"][0], prev_frame.position.transpose(2, 0, 1))
+        np.testing.assert_array_equal(got["depth"][0, 0], prev_frame.depth[..., 0])
