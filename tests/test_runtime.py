@@ -309,12 +309,12 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     from runtime.frames import Frame
     from runtime.inputs import frame_planes
 
-    tall = np.random.default_rng(1).random((53, 7, 3), dtype=np.float32)
-    tall[40, 2, 0] = bad
+    tall = np.random.default_rng(1).random((153, 7, 3), dtype=np.float32)
+    tall[140, 2, 0] = bad
     rep3 = SanitizeReport()
     planes = frame_planes(Frame(color=tall, position=tall.copy()), ["color", "position"], rep3)
     assert getattr(rep3, kind)["color"] == 1 and rep3.nonfinite.get("position", 0) == (kind == "nonfinite")
-    assert planes["color"][0, 0, 40, 2] == (MAX_RADIANCE if kind == "clamped" else 0.0)
+    assert planes["color"][0, 0, 140, 2] == (MAX_RADIANCE if kind == "clamped" else 0.0)
     np.testing.assert_array_equal(planes["position"][0], sanitize_array(tall, False, "position", SanitizeReport()).transpose(2, 0, 1))
 
 
@@ -322,12 +322,12 @@ def test_planes_round_trip_and_screen_normals_agree():
     from runtime.inputs import from_planes, screen_normal_planes, screen_normals, to_planes
 
     rng = np.random.default_rng(1)
-    img = rng.random((37, 21, 3), dtype=np.float32)   # not a multiple of the transpose block
+    img = rng.random((137, 21, 3), dtype=np.float32)   # not a multiple of the transpose block
     p = to_planes(img)
-    assert p.shape == (1, 3, 37, 21) and p.flags.c_contiguous
+    assert p.shape == (1, 3, 137, 21) and p.flags.c_contiguous
     np.testing.assert_array_equal(p[0], img.transpose(2, 0, 1))
     np.testing.assert_array_equal(from_planes(p[0]), img)
-    assert to_planes(img[..., :1]).shape == (1, 1, 37, 21)
+    assert to_planes(img[..., :1]).shape == (1, 1, 137, 21)
     rot = np.eye(4)
     rot[:3, :3] = [[0.6, 0.0, -0.8], [0.0, 1.0, 0.0], [0.8, 0.0, 0.6]]
     meta = {"camera": {"to_world": rot.tolist()}}
