@@ -111,8 +111,10 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool):
             y1 = min(h, y + BAND_ROWS)
             r = y1 - y
             sl = (slice(0, r), slice(None))
-            px = xs + motion[b, 0, y:y1]
-            py = np.arange(y, y1, dtype=ftype)[:, None] + motion[b, 1, y:y1]
+            # Clamped just off-screen (NaN -> -2): far or broken motion vectors must give
+            # small indices (np.take's "wrap" steps through huge ones one period at a time).
+            px = np.fmin(np.fmax(xs + motion[b, 0, y:y1], -2), w + 1)
+            py = np.fmin(np.fmax(np.arange(y, y1, dtype=ftype)[:, None] + motion[b, 1, y:y1], -2), h + 1)
             x0, y0 = np.floor(px), np.floor(py)
             fx, fy = px - x0, py - y0
             np.subtract(1, fx, out=gx[sl])
@@ -195,7 +197,9 @@ def _reproject_rows(stacked, motion, cur: dict, y_offset: int, h_full: int, use_
     n, _, h, w = motion.shape
     ys, xs = torch.meshgrid(torch.arange(y_offset, y_offset + h, dtype=motion.dtype, device=motion.device),
                             torch.arange(w, dtype=motion.dtype, device=motion.device), indexing="ij")
-    px, py = xs[None, None] + motion[:, 0:1], ys[None, None] + motion[:, 1:2]
+    # As in the numpy path: positions clamped just off-screen, NaN -> -2 (off-screen).
+    px = (xs[None, None] + motion[:, 0:1]).nan_to_num(nan=-2.0).clamp(-2, w + 1)
+    py = (ys[None, None] + motion[:, 1:2]).nan_to_num(nan=-2.0).clamp(-2, h_full + 1)
     x0, y0 = px.floor(), py.floor()
     fx, fy = px - x0, py - y0
     cur_depth = cur["depth"]

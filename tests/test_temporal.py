@@ -153,3 +153,28 @@ def test_integer_motion_skips_taps_without_changing_the_result(shift):
         hit = cur["depth"] > 0
         np.testing.assert_array_equal(hn, hit.astype(np.float32))
         np.testing.assert_array_equal(wn * hit, state * hit)
+
+
+def test_huge_and_nan_motion_is_off_screen_not_a_hang():
+    """Motion vectors far off-screen, at float32's limits, infinite or NaN: those pixels get no
+    history (their source is off-screen); numpy and torch agree; nothing hangs or warns."""
+    import warnings
+
+    h, w = 20, 24
+    motion = np.zeros((1, 2, h, w), np.float32)
+    motion[0, 0, 3, 4] = 1e30
+    motion[0, 1, 5, 5] = -3e38
+    motion[0, 0, 7, 7] = np.inf
+    motion[0, 1, 8, 8] = np.nan
+    g = {"depth": np.ones((1, 1, h, w), np.float32)}
+    prev = {k: v.copy() for k, v in g.items()}
+    state = np.ones((1, 3, h, w), np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (wn,), hn = reproject([state], motion, g, prev)
+    for y, x in ((3, 4), (5, 5), (7, 7), (8, 8)):
+        assert hn[0, 0, y, x] == 0 and (wn[0, :, y, x] == 0).all()
+    assert hn.sum() == h * w - 4
+    (wt,), ht = _torch_reproject([state], motion, g, prev)
+    np.testing.assert_array_equal(ht.numpy(), hn)
+    np.testing.assert_array_equal(wt.numpy(), wn)
