@@ -207,12 +207,11 @@ class Denoiser:
         with tm.stage(timing.POSTPROCESS):
             named = dict(zip([o.name for o in self.session.get_outputs()], outs))
             out = named["output"][0]                                   # (3, H, W)
-            if self.exposure != 1.0:
-                out = out * np.float32(1.0 / self.exposure)
+            inv = np.float32(1.0 / self.exposure)
             lo, hi = out.min(), out.max()                              # NaN/inf propagate
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 bad = ~np.isfinite(out)
-                out = np.where(bad, feeds_by_layer["color"][0], out)
+                out = np.where(bad, feeds_by_layer["color"][0] * np.float32(self.exposure), out)
                 self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
                           "values; replaced by the input and state reset", once_key=None)
                 named = None
@@ -225,7 +224,8 @@ class Denoiser:
                           "(counted in the report)", once_key="negative-output")
                 self.report.negative_output_values += int(neg.sum())
                 out = np.maximum(out, 0.0)
-            image = from_planes(out.astype(np.float32, copy=False))
+            # Back to the caller's units (auto-exposure) in the same pass as the layout change.
+            image = from_planes(out.astype(np.float32, copy=False), scale=None if inv == 1 else inv)
         with tm.stage(timing.STATE_UPDATE):
             if named is None:
                 self._state, self._guides = None, None

@@ -203,15 +203,18 @@ def _nan_last(v):
     return (np.isnan(v), v)
 
 
-def from_planes(chw: np.ndarray) -> np.ndarray:
+def from_planes(chw: np.ndarray, scale=None) -> np.ndarray:
     """(C, H, W) -> new contiguous (H, W, C) array of the same dtype (the inverse of
-    :func:`to_planes` for one image)."""
+    :func:`to_planes` for one image), times ``scale`` when given (a scalar of that dtype)."""
     c, h, w = chw.shape
     out = np.empty((h, w, c), chw.dtype)
     flat = out.reshape(h * w, c)
     # One strided write per channel: 2.0 ms at 720p, where row blocks (as in to_planes) take 4-5.
     for i in range(c):
-        flat[:, i] = chw[i].reshape(-1)
+        if scale is None:
+            flat[:, i] = chw[i].reshape(-1)
+        else:
+            np.multiply(chw[i].reshape(-1), scale, out=flat[:, i])
     return out
 
 

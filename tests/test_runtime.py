@@ -360,3 +360,32 @@ def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkey
     for prev_frame, got in zip(frames[:3], seen):
         np.testing.assert_array_equal(got["position"][0], prev_frame.position.transpose(2, 0, 1))
         np.testing.assert_array_equal(got["depth"][0, 0], prev_frame.depth[..., 0])
+
+
+def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file):
+    """Should the graph ever emit NaN/Inf, those pixels get the (sanitised) input colour in the
+    caller's units, auto-exposure notwithstanding, the state is reset, and it is said."""
+    path, _, _ = model_file
+    msgs = []
+    den = Denoiser.load(path, log=msgs.append)
+    frames = [_frame(t) for t in range(3)]
+    for f in frames:
+        f.color *= 37.0                        # far from the auto-exposure key: a factor != 1
+    den(frames[0])
+    assert den.exposure != 1.0
+    real = den.session.run
+
+    def broken(names, feeds):
+        outs = real(names, feeds)
+        outs[0][0, :, 2, 3] = np.nan
+        outs[0][0, 1, 4, 5] = np.inf
+        return outs
+
+    den.session.run = broken
+    out = den(frames[1])
+    np.testing.assert_allclose(out[2, 3], frames[1].color[2, 3], rtol=1e-6)
+    np.testing.assert_allclose(out[4, 5, 1], frames[1].color[4, 5, 1], rtol=1e-6)   # that value only
+    assert np.isfinite(out).all() and den._state is None
+    assert any("non-finite values; replaced by the input" in m for m in msgs)
+    den.session.run = real
+    assert np.isfinite(den(frames[2])).all() and den._state is not None
