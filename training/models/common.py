@@ -41,8 +41,9 @@ def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.
     Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
     multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
     """
-    # The broadcast (N, 1, H, W) factor goes second: onnxruntime's Mul broadcasting its first
-    # input runs 2x slower (720p stage: 5.9 -> 3.1 ms; torch 3.5 ms either way).
+    # The broadcast (N, 1, H, W) factor goes second: onnxruntime's Mul is slower when its
+    # first input is the broadcast one (the stage at 720p, four paired runs: 6.1-8.2 ms that
+    # way, 5.2-6.3 ms this way; torch 3.4-5.4 ms).
     return color + (prev - color) * (history * (1.0 - alpha))
 
 
