@@ -241,21 +241,26 @@ def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int
         handles.append(mod.register_forward_pre_hook(lambda m, a, s=s: starts.__setitem__(s, now())))
         handles.append(mod.register_forward_hook(
             lambda m, a, o, s=s: times.setdefault(s, []).append(1e3 * (now() - starts[s]))))
-    fr = synthetic_frame(w, h, 0, seed)
-    frame = Frame(**{k: v for k, v in fr.items()})
-    feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(frame, [n for n in model.input_names
-                                                                    if not n.startswith("prev_") and n != "history"]).items()}
-    args = []
-    for n in model.input_names:
-        if n == "history":
-            args.append(torch.ones(1, 1, h, w, device=device))
-        elif n.startswith("prev_"):
-            args.append(feeds["color"].clone())
-        else:
-            args.append(feeds[n])
+    def inputs(t):
+        # A fresh frame per call, prepared outside the timed region, as the onnxruntime driver
+        # gets one: timing one tensor set over and over would run torch from warm caches.
+        frame = Frame(**synthetic_frame(w, h, t, seed))
+        feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(
+            frame, [n for n in model.input_names if not n.startswith("prev_") and n != "history"]).items()}
+        args = []
+        for n in model.input_names:
+            if n == "history":
+                args.append(torch.ones(1, 1, h, w, device=device))
+            elif n.startswith("prev_"):
+                args.append(feeds["color"].clone())
+            else:
+                args.append(feeds[n])
+        return args
+
     total = []
     with torch.inference_mode():
         for i in range(warmup + frames):
+            args = inputs(i)
             t0 = now()
             model(*args)
             total.append(1e3 * (now() - t0))
