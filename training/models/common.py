@@ -7,8 +7,9 @@ the same way (STYLE: no magic constant in ten files):
 * :func:`temporal_accumulate` and :class:`TemporalStage`: the exponential moving average with
   the driver's reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2);
 * :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth];
-* :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`: the model-interface
-  bookkeeping of a model whose only state is the accumulated radiance.
+* :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`,
+  :func:`check_accum_model_spec`: the model-interface bookkeeping of a model whose only state
+  is the accumulated radiance.
 """
 from __future__ import annotations
 
@@ -98,3 +99,22 @@ def check_accum_state(spec, temporal: bool, where: str, type_name: str) -> None:
     if state != want:
         raise SpecError(f"{where}: [[state]] must be {want} for type '{type_name}' "
                         f"({'with' if temporal else 'without'} a temporal stage), got {state}")
+
+
+def check_accum_model_spec(spec, type_name: str, layers, stages) -> bool:
+    """Validate the parts of ``spec`` every accumulated-radiance model checks the same way:
+    ``[inputs].layers`` are ``layers`` (any order), ``stages`` are ``stages`` with an optional
+    leading "temporal", and ``[[state]]`` fits (:func:`check_accum_state`).  Raises SpecError
+    naming the spec; returns whether the model has the temporal stage."""
+    from training.specs import SpecError
+
+    where = spec.path or spec.name
+    if sorted(spec.inputs.layers) != sorted(layers):
+        raise SpecError(f"{where}: [inputs].layers must be {list(layers)} (any order) for type "
+                        f"'{type_name}', got {list(spec.inputs.layers)}")
+    temporal = "temporal" in spec.stages
+    want = (("temporal",) if temporal else ()) + tuple(stages)
+    if tuple(spec.stages) != want:
+        raise SpecError(f"{where}: stages must be {list(want)} for type '{type_name}', got {list(spec.stages)}")
+    check_accum_state(spec, temporal, where, type_name)
+    return temporal

@@ -58,8 +58,8 @@ from torch import nn
 from runtime.contract import HISTORY, state_input_name
 from runtime.transfer import luminance as _luminance
 from training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
-                                    check_accum_state, demodulate, remodulate)
-from training.specs import ModelSpec, SpecError, register
+                                    check_accum_model_spec, demodulate, remodulate)
+from training.specs import ModelSpec, register
 
 #: Range of the guide in grid units before division by η_d (Eq. 8: "d ... which we set to 255").
 GUIDE_RANGE = 255.0
@@ -456,14 +456,5 @@ def build_nbg(spec: ModelSpec) -> NBG:
     stages (["temporal",] "guide", "splat", "slice") and the state ([accum, 3] iff there is a
     temporal stage)."""
     params = spec.params_as(NBGParams)
-    where = spec.path or spec.name
-    if sorted(spec.inputs.layers) != sorted(LAYERS):
-        raise SpecError(f"{where}: [inputs].layers must be {list(LAYERS)} (any order) for type "
-                        f"'nbg', got {list(spec.inputs.layers)}")
-    temporal = "temporal" in spec.stages
-    stages = ("guide", "splat", "slice")
-    stages = ("temporal",) + stages if temporal else stages
-    if tuple(spec.stages) != stages:
-        raise SpecError(f"{where}: stages must be {list(stages)} for type 'nbg', got {list(spec.stages)}")
-    check_accum_state(spec, temporal, where, "nbg")
+    temporal = check_accum_model_spec(spec, "nbg", LAYERS, ("guide", "splat", "slice"))
     return NBG(params, spec.inputs.layers, spec.inputs.transfer, temporal)

@@ -36,8 +36,9 @@ from torch import nn
 
 from runtime.contract import HISTORY, state_input_name
 from training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
-                                    aux_features, bind_inputs, check_accum_state, temporal_accumulate)
-from training.specs import ModelSpec, SpecError, register
+                                    aux_features, bind_inputs, check_accum_model_spec,
+                                    temporal_accumulate)
+from training.specs import ModelSpec, register
 
 #: Importance values are clamped to ±IMPORTANCE_BOUND before exp: a weight ratio of
 #: exp(2·20) ≈ 2e17 already means "ignore", and bounded weights keep every window sum
@@ -92,14 +93,8 @@ class WSKPNParams:
 
 def wskpn_features(accum: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
                    depth: torch.Tensor, transfer: str) -> torch.Tensor:
-    """ImportanceNet input (§5.1): (N, 10, H, W) =
-    [transfer(accum) (3), albedo (3), normal·0.5+0.5 in [0, 1] (3), depth / per-image max (1)].
-
-    accum: linear HDR radiance (albedo-modulated, as rendered); normal: unit vectors (0 on a
-    miss -> 0.5); depth: ray distance, 0 on a miss.  Dividing by the per-image maximum keeps the
-    feature in [0, 1] whatever the scene units (the paper scales linearly to [0, 1]); a crop's
-    maximum differs from its frame's, which training crops must live with.
-    """
+    """ImportanceNet input (§5.1): :func:`training.models.common.aux_features` of the
+    accumulated colour, (N, 10, H, W)."""
     return aux_features(accum, albedo, normal, depth, transfer)
 
 
@@ -500,13 +495,5 @@ def build_wskpn(spec: ModelSpec) -> WSKPN:
     stages (["temporal",] "prediction", "reconstruction") and the state ([accum, 3] iff there is
     a temporal stage)."""
     params = spec.params_as(WSKPNParams)
-    where = spec.path or spec.name
-    if sorted(spec.inputs.layers) != sorted(LAYERS):
-        raise SpecError(f"{where}: [inputs].layers must be {list(LAYERS)} (any order) for type "
-                        f"'wskpn', got {list(spec.inputs.layers)}")
-    temporal = "temporal" in spec.stages
-    stages = ("temporal", "prediction", "reconstruction") if temporal else ("prediction", "reconstruction")
-    if tuple(spec.stages) != stages:
-        raise SpecError(f"{where}: stages must be {list(stages)} for type 'wskpn', got {list(spec.stages)}")
-    check_accum_state(spec, temporal, where, "wskpn")
+    temporal = check_accum_model_spec(spec, "wskpn", LAYERS, ("prediction", "reconstruction"))
     return WSKPN(params, spec.inputs.layers, spec.inputs.transfer, temporal)
