@@ -56,7 +56,8 @@ def reproject(states, motion, cur: dict, prev: dict):
         return _reproject_numpy(states, motion, cur, prev, use_pos, use_nrm)
     n, _, h, w = motion.shape
     # One gather per tap for every field: the guides and all states stacked along channels.
-    fields = [prev["depth"]] + ([prev["position"]] if use_pos else []) + ([prev["normal"]] if use_nrm else []) + list(states)
+    fields = ([prev["depth"]] + ([prev["position"]] if use_pos else []) + ([prev["normal"]] if use_nrm else [])
+              + list(states))
     stacked = _torch().cat(fields, dim=1).reshape(n, sum(f.shape[1] for f in fields), h * w)
     acc, history = _reproject_rows(stacked, motion, cur, 0, h, use_pos, use_nrm)
     return _split_states(acc, states), history
@@ -141,7 +142,8 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool):
                 np.multiply(fx if dx else gx[sl], fy if dy else gy[sl], out=wk)
                 if not wk.any():
                     continue
-                # Off-screen taps read some valid pixel (wrapped flat index: "wrap" gathers faster than "clip"); ``in_x``/``in_y`` drop them.
+                # Off-screen taps read some valid pixel (the flat index wraps: "wrap" gathers
+                # faster than "clip"); ``in_x`` / ``in_y`` drop them.
                 ik = idx[sl]
                 np.add(base, dy * w + dx, out=ik)
                 gk = [np.take(p, ik, mode="wrap", out=q[sl]) for p, q in zip(guides, g)]

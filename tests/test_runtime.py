@@ -299,7 +299,8 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     assert getattr(rep, kind) == {"color": 1} and rep.total == 1
     assert np.isfinite(out).all() and out.min() >= 0 and out.max() <= MAX_RADIANCE
     assert out[3, 4, 1] == (MAX_RADIANCE if kind == "clamped" else 0.0)
-    np.testing.assert_array_equal(np.delete(out.ravel(), 3 * 21 + 4 * 3 + 1), np.delete(arr.ravel(), 3 * 21 + 4 * 3 + 1))
+    k = 3 * 21 + 4 * 3 + 1                     # flat index of [3, 4, 1]
+    np.testing.assert_array_equal(np.delete(out.ravel(), k), np.delete(arr.ravel(), k))
     # geometric layers keep negatives and large values; only non-finite ones are replaced
     rep2 = SanitizeReport()
     out2 = sanitize_array(arr, False, "position", rep2)
@@ -315,7 +316,8 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     planes = frame_planes(Frame(color=tall, position=tall.copy()), ["color", "position"], rep3)
     assert getattr(rep3, kind)["color"] == 1 and rep3.nonfinite.get("position", 0) == (kind == "nonfinite")
     assert planes["color"][0, 0, 140, 2] == (MAX_RADIANCE if kind == "clamped" else 0.0)
-    np.testing.assert_array_equal(planes["position"][0], sanitize_array(tall, False, "position", SanitizeReport()).transpose(2, 0, 1))
+    want = sanitize_array(tall, False, "position", SanitizeReport()).transpose(2, 0, 1)
+    np.testing.assert_array_equal(planes["position"][0], want)
 
 
 def test_planes_round_trip_and_screen_normals_agree():

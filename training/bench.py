@@ -437,7 +437,8 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
                 spec = parse_spec(c.spec_toml, f"{path} (embedded spec)")
                 model = build_model(spec).eval().deploy()
                 torch_med = bench_torch(model, stages, w, h, frames, warmup, seed, device)
-            order = list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER) + [timing.GRAPH, timing.TOTAL]
+            order = (list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER)
+                     + [timing.GRAPH, timing.TOTAL])
             for s in order:
                 rows.append({"model": c.spec_name, "size": size, "stage": s,
                              "onnxruntime_ms": ort_med.get(s), "torch_ms": torch_med.get(s),
