@@ -61,10 +61,13 @@ def _clamp01(x):
 POW_FLOOR = 1e-30
 
 
-def _pow_floor(x, p):
+def _pow_floor(x, p, hi=None):
+    """``max(x, POW_FLOOR) ** p`` (and at most ``hi ** p``), computed as exp(p·log(·)):
+    onnxruntime's Pow runs a scalar pow per value (3 channels at 1280x720: 7.7 ms) where Log,
+    Mul and Exp are vectorised (4.5 ms together).  Equal to the power up to float rounding."""
     if xp(x) is np:
-        return np.maximum(x, POW_FLOOR) ** p
-    return x.clamp(min=POW_FLOOR) ** p
+        return np.exp(np.log(np.clip(x, POW_FLOOR, hi)) * p)
+    return (x.clamp(min=POW_FLOOR, max=hi).log() * p).exp()
 
 
 def gamma(x):
@@ -72,7 +75,7 @@ def gamma(x):
 
     Values above 1 saturate (the paper's LDR input).
     """
-    return _pow_floor(_clamp01(x), 1.0 / GAMMA)
+    return _pow_floor(x, 1.0 / GAMMA, hi=1.0)
 
 
 def gamma_inv(y):

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from training.models import example_inputs
-from training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, RepVGGBlock, ReconstructionStage, WSKPNParams,
-                                   apply_kernel_boxsum, apply_kernel_unfold, downsample2, fuse_kernels,
-                                   importance_weights, pad_to_multiple, temporal_accumulate, upsample2)
+from training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, RepVGGBlock, ReconstructionStage,
+                                   WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, downsample2,
+                                   fuse_kernels, fusion_factors, importance_weights, kernel_exponentials,
+                                   pad_to_multiple, temporal_accumulate, upsample2)
 from training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
 
 WSKPN_SPECS = [n for n in list_specs() if load_spec(n).type == "wskpn"]
@@ -188,6 +189,35 @@ def test_model_kernel_paths_agree(name):
     assert (box - unf).abs().max() <= 1e-5 * unf.abs().max()
 
 
+def test_fusion_is_the_softmax_of_eq5():
+    """Σ softmax(L)_i R_i (Eq. 5) with torch's softmax, for logits spread over ±30: the clamped
+    exponentials change nothing inside the bound.  float64, 1e-12 relative."""
+    gen = torch.Generator().manual_seed(8)
+    x = torch.rand(1, 3, 17, 19, generator=gen, dtype=torch.float64) * 4
+    imp = torch.randn(1, 3, 17, 19, generator=gen, dtype=torch.float64) * 5
+    logits = (torch.rand(1, 3, 17, 19, generator=gen, dtype=torch.float64) - 0.5) * 60
+    sizes = (3, 7, 13)
+    soft = torch.softmax(logits, dim=1)
+    want = sum(soft[:, i:i + 1] * apply_kernel_boxsum(x, importance_weights(imp[:, i:i + 1]), k)
+               for i, k in enumerate(sizes))
+    for path in ("boxsum", "unfold"):
+        got = fuse_kernels(x, imp, logits, sizes, path)
+        assert (got - want).abs().max() <= 1e-12 * want.abs().max(), path
+
+
+def test_kernel_exponentials_are_weights_and_factors():
+    """The stage's one-pass exponentials equal importance_weights / fusion_factors of the two
+    halves, bounds included, on the prediction stage's clamped output."""
+    m = 3
+    pred = torch.randn(2, 2 * m, 5, 6, dtype=torch.float64) * 30
+    pred[0, 0, 0, 0], pred[0, m, 0, 0] = 1e30, -1e30
+    pred = pred.clamp(-LOGIT_BOUND, LOGIT_BOUND)
+    weights, factors = kernel_exponentials(pred, m)
+    assert len(weights) == len(factors) == m
+    torch.testing.assert_close(torch.cat(weights, 1), importance_weights(pred[:, :m]), rtol=1e-15, atol=0)
+    torch.testing.assert_close(torch.cat(factors, 1), fusion_factors(pred[:, m:2 * m]), rtol=0, atol=0)
+
+
 def test_fusion_weights_select_a_kernel():
     """Logits strongly favouring kernel i give R_i (Eq. 5), kernel 3 ≠ kernel 13."""
     gen = torch.Generator().manual_seed(6)
@@ -303,7 +333,9 @@ def test_huge_importance_and_logits_stay_finite_and_convex():
         assert torch.isfinite(out).all(), path
         assert (out >= x.min() * (1 - 1e-6)).all() and (out <= x.max() * (1 + 1e-6)).all(), path
     w = importance_weights(torch.tensor([[[[1e30, -1e30, 0.0]]]]))
-    assert torch.equal(w, torch.exp(torch.tensor([[[[0.0, -2 * IMPORTANCE_BOUND, -IMPORTANCE_BOUND]]]])))
+    assert torch.equal(w, torch.exp(torch.tensor([[[[IMPORTANCE_BOUND, -IMPORTANCE_BOUND, 0.0]]]])))
+    a = fusion_factors(torch.tensor([[[[1e30, -1e30, 0.0]]]]))
+    assert torch.equal(a, torch.exp(torch.tensor([[[[LOGIT_BOUND, -LOGIT_BOUND, 0.0]]]])))
 
 
 @pytest.mark.parametrize("name", WSKPN_SPECS)

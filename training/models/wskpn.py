@@ -27,6 +27,7 @@ the borders too.  :meth:`WSKPN.deploy` fuses the RepVGG blocks and selects ``"bo
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -44,12 +45,19 @@ from training.specs import ModelSpec, register
 #: exp(2·20) ≈ 2e17 already means "ignore", and bounded weights keep every window sum
 #: positive and far from float32 under/overflow, so no division by 0 for any network output.
 IMPORTANCE_BOUND = 20.0
+#: Fusion logits are clamped to ±LOGIT_BOUND before exp (by the prediction stage, for all its
+#: outputs), so the softmax of Eq. 5 needs no per-pixel maximum (a channel reduction, slow in
+#: onnxruntime).  It equals the exact softmax
+#: while every logit is within the bound: the shipped models' logits stay within ±27 on the
+#: training frames.  Float32 range in :func:`fuse_boxsum`: a / boxmean(w) is at most
+#: exp(LOGIT_BOUND + IMPORTANCE_BOUND)·169/49 ≈ 4e26 (a 13×13 window in a corner), and the
+#: fused sums at most exp(LOGIT_BOUND)·M·max(x) ≈ 1e18·max(x).
+LOGIT_BOUND = 40.0
 #: Kernel application variants (see module docstring); "boxsum" is the fast, deployed one.
 KERNEL_PATHS = ("boxsum", "unfold")
 #: Pixel layers WSKPN reads, and the channel count of the ImportanceNet input.
 LAYERS = ("color", "albedo", "normal", "depth")
 N_FEATURES = 10
-#: Name of the state tensor of the temporal stage.
 
 
 @dataclass(frozen=True)
@@ -119,47 +127,47 @@ def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
 def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
     """Sum over the k×k window around each pixel of zero-padded ``x``, divided by k²:
     (N, C, H, W) -> same.  Separable (1×k then k×1 average pools, count_include_pad so the
-    divisor is k² everywhere: ratios of two window means are ratios of window sums)."""
+    divisor is k² everywhere: ratios of two window means are ratios of window sums).
+
+    onnxruntime pools the channels of an image in parallel and each channel on one thread, so
+    a lone plane (C = 1) pools on one core; :func:`fuse_boxsum` pools C + 1 >= 2 channels.
+    """
     if k == 1:
         return x
     r = k // 2
-    n, c, h, w = x.shape
-    # The 1×k pass sees every row as a channel: onnxruntime pools channels in parallel.
-    x = F.avg_pool2d(x.reshape(n, c * h, 1, w), (1, k), stride=1, padding=(0, r),
-                     count_include_pad=True).reshape(n, c, h, w)
-    return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
-
-
-def _plane_window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
-    """:func:`_window_mean` of one plane, (N, 1, H, W) -> same, as the deployed graph runs it."""
-    if k == 1:
-        return x
-    r = k // 2
-    # Rows as channels for the 1×k pass, so onnxruntime pools them in parallel (a lone
-    # (N, 1, H, W) plane runs on one thread).  Squeeze/unsqueeze move the size-1 axis without
-    # a copy and, unlike a dynamic reshape, export no shape arithmetic (5 ms of tiny ops per
-    # 720p frame over the 48 pools); a Transpose would copy (24 ms).
-    x = F.avg_pool2d(x.squeeze(1).unsqueeze(2), (1, k), stride=1, padding=(0, r),
-                     count_include_pad=True).squeeze(2).unsqueeze(1)
+    x = F.avg_pool2d(x, (1, k), stride=1, padding=(0, r), count_include_pad=True)
     return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
 
 
 def importance_weights(importance: torch.Tensor) -> torch.Tensor:
-    """exp(I − max I) per image and map: (N, M, H, W) -> weights in (0, 1].
+    """exp(I) of I clamped to ±IMPORTANCE_BOUND: (N, M, H, W) -> weights in
+    [exp(−bound), exp(bound)] ≈ [2e-9, 5e8].
 
-    I is clamped to ±IMPORTANCE_BOUND first, so every weight is >= exp(−2·bound) ≈ 4e-18: a
-    window sum is never 0.  The max is a per-image constant and cancels in Eq. 3 (detached:
-    it carries no gradient).
+    Every window sum is then positive and finite in float32, so Eq. 3 never divides by 0;
+    a per-image maximum (the usual softmax shift) would cancel in Eq. 3 and costs a reduction.
     """
-    i = importance.clamp(-IMPORTANCE_BOUND, IMPORTANCE_BOUND)
-    return torch.exp(i - i.amax(dim=(2, 3), keepdim=True).detach())
+    return torch.exp(importance.clamp(-IMPORTANCE_BOUND, IMPORTANCE_BOUND))
 
 
-def _weighted_window_means(x: torch.Tensor, weights: torch.Tensor, k: int):
-    """(window mean of w·x (N, C, H, W), window mean of w (N, 1, H, W)), pooled together."""
-    # Pooled separately: a channel concat and the split afterwards cost more in onnxruntime
-    # than a second (1-channel) pooling pass.
-    return _window_mean(weights * x, k), _window_mean(weights, k)
+def fusion_factors(logits: torch.Tensor) -> torch.Tensor:
+    """Unnormalised softmax weights of Eq. 5: exp(L) of L clamped to ±LOGIT_BOUND,
+    (N, M, H, W) -> positive factors; divided by their sum over M they are softmax(L)."""
+    return torch.exp(logits.clamp(-LOGIT_BOUND, LOGIT_BOUND))
+
+
+def kernel_exponentials(pred: torch.Tensor, m: int) -> tuple[list, list]:
+    """:func:`importance_weights` of ``pred[:, :m]`` and :func:`fusion_factors` of
+    ``pred[:, m:2m]`` as two lists of M (N, 1, H, W) planes, for ``pred`` (N, 2M, H, W) within
+    ±LOGIT_BOUND (:class:`PredictionStage` clamps its output).
+
+    One exp over all 2M channels and one split, then the weights' tighter bound applied to
+    exp(·) (exp is monotonic: equal up to the rounding of exp(±IMPORTANCE_BOUND)).  Slicing
+    the two halves first costs onnxruntime a copy of every plane, and a clamp with
+    per-channel bounds (Min/Max with broadcast) ran 3x slower.
+    """
+    planes = torch.exp(pred).split(1, dim=1)
+    lo, hi = math.exp(-IMPORTANCE_BOUND), math.exp(IMPORTANCE_BOUND)
+    return [p.clamp(lo, hi) for p in planes[:m]], list(planes[m:])
 
 
 def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch.Tensor:
@@ -168,8 +176,7 @@ def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch
     x: (N, C, H, W); weights: (N, 1, H, W) positive (see :func:`importance_weights`).
     Taps outside the image contribute nothing (zero padding of both sums).
     """
-    num, den = _weighted_window_means(x, weights, k)
-    return num / den
+    return _window_mean(weights * x, k) / _window_mean(weights, k)
 
 
 def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int) -> torch.Tensor:
@@ -190,31 +197,41 @@ def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int) -> to
     return (cols * wts.unsqueeze(1)).sum(dim=2)
 
 
+def fuse_boxsum(x: torch.Tensor, weights: Sequence[torch.Tensor], factors: Sequence[torch.Tensor],
+                kernel_sizes: Sequence[int]) -> torch.Tensor:
+    """Kernel fusion (Eq. 5) on the boxsum path: Σ_i a_i R_i / Σ_i a_i with
+    R_i = boxsum_k_i(w_i·x) / boxsum_k_i(w_i).
+
+    x: (N, C, H, W) irradiance; weights (:func:`importance_weights`), factors
+    (:func:`fusion_factors`): M (N, 1, H, W) positive planes each.  Returns (N, C, H, W).
+
+    x carries an extra channel of ones, so one multiply and one pair of pools per kernel give
+    both sums, and the accumulated ones channel ends as Σ_i a_i: the softmax divides once.
+    onnxruntime runs these (C + 1 = 4)-channel ops evenly on two threads; pooling plane by
+    plane ran each vertical pass on one thread (1280x720, 2 threads: whole graph 254 -> 240 ms).
+    """
+    x1 = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)
+    acc = None
+    for w, a, k in zip(weights, factors, kernel_sizes):
+        s = _window_mean(w * x1, k)                 # [boxmean(w·x), boxmean(w)]
+        term = s * (a / s[:, -1:])
+        acc = term if acc is None else acc + term
+    return acc[:, :-1] / acc[:, -1:]
+
+
 def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor,
                  kernel_sizes: Sequence[int], kernel_path: str = "boxsum") -> torch.Tensor:
-    """Kernel fusion (Eq. 5): Σ_i α_i R_i with α = softmax over i of ``logits``.
-
-    x: (N, C, H, W) irradiance; importance, logits: (N, M, H, W) with M = len(kernel_sizes).
-    The softmax is written exp(x − max) / Σ, divided once at the end (onnxruntime's channel
-    Softmax on NCHW is slow).  Returns (N, C, H, W).
+    """Kernel fusion (Eq. 5): Σ_i α_i R_i with α = softmax over i of ``logits``
+    (:func:`fusion_factors`, divided once at the end: onnxruntime's channel Softmax on NCHW
+    is slow).  x: (N, C, H, W) irradiance; importance, logits: (N, M, H, W) with
+    M = len(kernel_sizes).  Returns (N, C, H, W).
     """
     if kernel_path not in KERNEL_PATHS:
         raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {kernel_path!r}")
-    a = torch.exp(logits - logits.amax(dim=1, keepdim=True))
     if kernel_path == "boxsum":
-        # Channel by channel: every multiply and pool is on same-shape (N, 1, H, W) planes;
-        # onnxruntime runs (N, 1, H, W) x (N, 3, H, W) broadcasts nearly single-threaded.
-        weights = importance_weights(importance)
-        planes = [x[:, c:c + 1] for c in range(x.shape[1])]
-        acc = [None] * len(planes)
-        for i, k in enumerate(kernel_sizes):
-            w = weights[:, i:i + 1]
-            scale = a[:, i:i + 1] / _plane_window_mean(w, k)   # α_i / boxsum_k(w)
-            for c, p in enumerate(planes):
-                term = _plane_window_mean(w * p, k) * scale
-                acc[c] = term if acc[c] is None else acc[c] + term
-        inv = 1.0 / a.sum(dim=1, keepdim=True)
-        return torch.cat([t * inv for t in acc], dim=1)
+        return fuse_boxsum(x, list(importance_weights(importance).split(1, dim=1)),
+                           list(fusion_factors(logits).split(1, dim=1)), kernel_sizes)
+    a = fusion_factors(logits)
     acc = None
     for i, k in enumerate(kernel_sizes):
         term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
@@ -387,7 +404,8 @@ class ImportanceUNet(nn.Module):
 
 class PredictionStage(nn.Module):
     """Stage "prediction": features (:func:`wskpn_features`) -> ImportanceNet.
-    Returns per level (N, 2M (+1 blend logit below the coarsest level), H_l, W_l)."""
+    Returns per level (N, 2M (+1 blend logit below the coarsest level), H_l, W_l), clamped to
+    ±LOGIT_BOUND."""
 
     def __init__(self, params: WSKPNParams, transfer: str):
         super().__init__()
@@ -404,7 +422,9 @@ class PredictionStage(nn.Module):
         f = wskpn_features(accum, albedo, normal, depth, self.transfer)
         if self.multiple > 1:
             f = pad_to_multiple(f, self.multiple)
-        return self.net(f)
+        # Bounded here, not in reconstruction: onnxruntime fuses the clamp into the last
+        # convolution (free), and the fused node keeps this stage's name for the stage table.
+        return [p.clamp(-LOGIT_BOUND, LOGIT_BOUND) for p in self.net(f)]
 
 
 class ReconstructionStage(nn.Module):
@@ -431,7 +451,12 @@ class ReconstructionStage(nn.Module):
         for l, p in enumerate(preds):
             if l > 0:
                 x = downsample2(x)
-            filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, self.kernel_path))
+            if self.kernel_path == "boxsum":
+                # The coarsest level has no blend channel: no slice (a copy in onnxruntime).
+                weights, factors = kernel_exponentials(p if l == len(preds) - 1 else p[:, :2 * m], m)
+                filtered.append(fuse_boxsum(x, weights, factors, self.kernel_sizes))
+            else:
+                filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, "unfold"))
         out = filtered[-1]
         for l in reversed(range(len(preds) - 1)):
             fine = filtered[l]
