@@ -11,6 +11,7 @@ are :data:`DRIVER_STAGES`.
 """
 from __future__ import annotations
 
+import bisect
 import json
 import time
 from contextlib import contextmanager
@@ -55,32 +56,54 @@ class FrameTimer:
             self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
 
 
-def graph_stage_times(profile_path: str, stages: list[str]) -> list[dict[str, float]]:
-    """Per-run {stage: ms} from an onnxruntime profile JSON file (one dict per ``run()``)."""
+def _profile_events(profile_path: str):
     with open(profile_path) as fh:
         events = json.load(fh)
     runs = sorted((e for e in events if e.get("name") == "model_run"), key=lambda e: e["ts"])
     nodes = sorted((e for e in events if e.get("cat") == "Node" and e.get("name", "").endswith("_kernel_time")),
                    key=lambda e: e["ts"])
+    return runs, nodes, [e["ts"] for e in nodes]
+
+
+def _attributed(nodes, keys, start: float, end: float, stages: list[str]):
+    """(node event, stage) for the kernels that ran within [start, end], in order: a node named
+    ``/<stage>/...`` belongs to that stage, any other to the stage of the node before it.
+    ``keys``: the nodes' start times (sorted)."""
+    current = stages[0] if stages else None
+    for e in nodes[bisect.bisect_left(keys, start):]:
+        if e["ts"] > end:
+            break
+        name = e["name"]
+        for s in stages:
+            if name.startswith(f"/{s}/"):
+                current = s
+                break
+        yield e, current
+
+
+def graph_stage_times(profile_path: str, stages: list[str]) -> list[dict[str, float]]:
+    """Per-run {stage: ms} from an onnxruntime profile JSON file (one dict per ``run()``)."""
+    runs, nodes, keys = _profile_events(profile_path)
     out = []
-    j = 0
     for r in runs:
-        start, end = r["ts"], r["ts"] + r["dur"]
         per = {s: 0.0 for s in stages}
-        current = stages[0] if stages else None
-        while j < len(nodes) and nodes[j]["ts"] < start:
-            j += 1
-        while j < len(nodes) and nodes[j]["ts"] <= end:
-            name = nodes[j]["name"]
-            for s in stages:
-                if name.startswith(f"/{s}/"):
-                    current = s
-                    break
-            if current is not None:
-                per[current] += nodes[j]["dur"] / 1e3
-            j += 1
+        for e, stage in _attributed(nodes, keys, r["ts"], r["ts"] + r["dur"], stages):
+            if stage is not None:
+                per[stage] += e["dur"] / 1e3
         out.append(per)
     return out
+
+
+def node_stages(profile_path: str, stages: list[str]) -> list[tuple[str, str, str | None]]:
+    """(kernel name, op type, stage) of every kernel of the profile's first run, as
+    :func:`graph_stage_times` charges them (what a test checks after graph changes: a fusion
+    can rename a node into the next stage's scope)."""
+    runs, nodes, keys = _profile_events(profile_path)
+    if not runs:
+        return []
+    r = runs[0]
+    return [(e["name"][:-len("_kernel_time")], e.get("args", {}).get("op_name", ""), stage)
+            for e, stage in _attributed(nodes, keys, r["ts"], r["ts"] + r["dur"], stages)]
 
 
 def paper_key(stage: str) -> str | None:

@@ -14,6 +14,7 @@ import torch
 from runtime.denoiser import Denoiser, ModelFileError
 from runtime.frames import Frame, FrameError, write_frame
 from runtime.inputs import frame_inputs
+from runtime.methods import shipped_models
 from training.bench import synthetic_frame
 
 SPEC = "wskpn-3"
@@ -177,6 +178,25 @@ def test_stage_times_cover_graph_stages(model_file):
     table = den.stage_table()
     for stage in ("preprocess", "reproject", "total") + tuple(spec.stages):
         assert stage in table
+
+
+@pytest.mark.parametrize("path", shipped_models(), ids=os.path.basename)
+def test_stage_table_charges_each_conv_to_its_own_stage(path):
+    """onnxruntime renames fused nodes after their last output (a conv fused with a clamp that
+    belongs to the next stage would be charged to that stage): per stage, the profile must
+    count as many Conv kernels as the graph has Conv nodes in that stage's scope."""
+    import collections
+
+    from runtime import timing
+
+    den = Denoiser.load(path, profile=True, log=lambda m: None)
+    stages = den.graph_stages
+    want = collections.Counter(next(s for s in stages if n.name.startswith(f"/{s}/"))
+                               for n in onnx.load(path).graph.node if n.op_type == "Conv")
+    den(_frame(0, 32, 24))
+    got = collections.Counter(stage for _, op, stage in timing.node_stages(den.session.end_profiling(), stages)
+                              if op == "Conv")
+    assert want and got == want
 
 
 def test_denoise_command_on_a_sequence(model_file, tmp_path):
