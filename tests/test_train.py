@@ -3,7 +3,6 @@ import json
 
 import numpy as np
 import onnxruntime as ort
-import pytest
 import torch
 
 from export.onnx_export import export_run

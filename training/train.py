@@ -12,7 +12,6 @@ stores model, optimiser, epoch and position within the epoch.
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import time
