@@ -32,6 +32,7 @@ from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
 from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
 from runtime.temporal import reproject
+from runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
 #: Guide layers stored for the consistency test, when the frame has them.
 GUIDE_LAYERS = ("depth", "position", "normal")
@@ -70,8 +71,10 @@ class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
     def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
-                 autoexposure: bool = True):
+                 autoexposure: bool = True, driver_threads: int | None = None):
         self.session = session
+        #: Threads of the driver's own numpy stages (layer conversion, reprojection).
+        self.driver_threads = default_threads() if driver_threads is None else max(1, int(driver_threads))
         self.autoexposure = autoexposure
         #: The current history's auto-exposure factor (set at its first frame; 1 when off).
         self.exposure = 1.0
@@ -99,12 +102,16 @@ class Denoiser:
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
-             profile: bool = False, log=None, autoexposure: bool = True) -> "Denoiser":
+             profile: bool = False, log=None, autoexposure: bool = True,
+             driver_threads: int | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
           providers: onnxruntime execution providers (default: CPU).
           threads: intra-op threads (0: onnxruntime default).
+          driver_threads: threads of the driver's numpy stages (None: ``threads`` when given,
+            at most :data:`runtime.workers.MAX_DEFAULT_THREADS`; else
+            :func:`runtime.workers.default_threads`).  The output does not depend on it.
           profile: record per-node times so :meth:`stage_table` can split the graph by stage.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
@@ -135,7 +142,10 @@ class Denoiser:
             contract = parse_contract(sess.get_modelmeta().custom_metadata_map)
         except ValueError as e:
             raise ModelFileError(f"{path}: {e}") from None
-        return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure)
+        if driver_threads is None and threads:
+            driver_threads = min(threads, MAX_DEFAULT_THREADS)
+        return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
+                   driver_threads=driver_threads)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -184,7 +194,7 @@ class Denoiser:
             # (also after a frame that failed half-way).
             buffer_set = 1 - self._guides_set
             planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
-                                  buffers=self._plane_buffers[buffer_set])
+                                  buffers=self._plane_buffers[buffer_set], threads=self.driver_threads)
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
@@ -265,7 +275,8 @@ class Denoiser:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)
         names = [st["name"] for st in self.contract.state]
-        warped, history = reproject([self._state[n] for n in names], motion, guides, self._guides)
+        warped, history = reproject([self._state[n] for n in names], motion, guides, self._guides,
+                                    threads=self.driver_threads)
         for st, arr in zip(self.contract.state, warped):
             feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
         feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)

@@ -42,6 +42,7 @@ from runtime.denoiser import GUIDE_LAYERS, _as_frame
 from runtime.frames import FrameError
 from runtime.inputs import ALBEDO_EPS, SanitizeReport, sanitize_array
 from runtime.temporal import reproject
+from runtime.workers import default_threads
 from runtime.transfer import LUMA as TRANSFER_LUMA
 
 #: Exponential moving average weights of colour and moments (SVGF: 0.2 each).
@@ -242,7 +243,7 @@ class SVGF:
             else:
                 motion = np.zeros((1, 2, h, w), np.float32)
             (p_illum, p_mom, p_len), hist = reproject([self._illum, self._moments, self._length],
-                                                      motion, guides, self._guides)
+                                                      motion, guides, self._guides, threads=default_threads())
             length = p_len[0, 0] * hist[0, 0] + 1.0
             p_illum, p_mom = p_illum[0], p_mom[0]
         else:

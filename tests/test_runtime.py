@@ -358,6 +358,23 @@ def test_planes_round_trip_and_screen_normals_agree():
     assert screen_normal_planes(p, {}) is p
 
 
+def test_driver_threads_do_not_change_the_output(model_file):
+    """One driver thread or three (layer conversion and reprojection split across workers):
+    the same images, to the bit, over a sequence with history, a NaN and a negative value."""
+    path, _, _ = model_file
+    outs = {}
+    for threads in (1, 3):
+        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads)
+        assert den.driver_threads == threads
+        frames = [_frame(t, 40, 150) for t in range(3)]
+        frames[1].color[5, 7, 1] = np.nan
+        frames[2].color[9, 3, 0] = -4.0
+        outs[threads] = ([den(f) for f in frames], den.report.sanitized_frames)
+    assert outs[1][1] == outs[3][1] == 2
+    for a, b in zip(outs[1][0], outs[3][0]):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
     """The driver reuses two sets of input planes; the previous frame's guides must reach the
     reprojection intact, also when the frame before failed half-way."""
@@ -365,8 +382,8 @@ def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkey
 
     seen = []
     real = rd.reproject
-    monkeypatch.setattr(rd, "reproject", lambda s, m, cur, prev: (seen.append({k: v.copy() for k, v in prev.items()}),
-                                                                 real(s, m, cur, prev))[1])
+    monkeypatch.setattr(rd, "reproject", lambda s, m, cur, prev, **kw: (
+        seen.append({k: v.copy() for k, v in prev.items()}), real(s, m, cur, prev, **kw))[1])
     path, _, _ = model_file
     den = Denoiser.load(path, log=lambda m: None)
     frames = [_frame(t) for t in range(4)]

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.temporal import reproject
+from runtime.temporal import THREADED_BAND_ROWS as BAND, reproject
 
 
 def _scene(h=6, w=8, shift=1.0):
@@ -133,6 +133,28 @@ def test_numpy_fast_path_matches_torch_for_every_guide_set_and_batch(keys):
     for a, b in zip(wn, wt):
         assert a.shape == b.shape
         np.testing.assert_allclose(b.numpy(), a, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize("h", [5, 2 * BAND + 1, 3 * BAND + 17])
+def test_threads_split_rows_without_changing_the_result(threads, h):
+    """numpy with worker threads (each a share of whole bands) equals one thread to the
+    bit, for heights below one band, one row past two bands and uneven shares; batch of 2,
+    integer motion on part of the frame (skipped taps in some bands only)."""
+    rng = np.random.default_rng(h)
+    n, w = 2, 7
+    keys = ("depth", "position", "normal")
+    motion = ((rng.random((n, 2, h, w)) - 0.5) * 5).astype(np.float32)
+    motion[:, :, : h // 2] = 1.0
+    cur, prev = _random_guides(rng, n, h, w, keys), _random_guides(rng, n, h, w, keys)
+    prev["position"] = cur["position"] + rng.normal(0, 0.1, cur["position"].shape).astype(np.float32)
+    states = [rng.random((n, 3, h, w), dtype=np.float32), rng.random((n, 1, h, w), dtype=np.float32)]
+    w1, h1 = reproject(states, motion, cur, prev)
+    wt, ht = reproject(states, motion, cur, prev, threads=threads)
+    assert 0.1 < h1.mean() < 0.95
+    np.testing.assert_array_equal(ht, h1)
+    for a, b in zip(w1, wt):
+        np.testing.assert_array_equal(b, a)
 
 
 @pytest.mark.parametrize("shift", [0.0, 2.0, -1.0])
