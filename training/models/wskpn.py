@@ -18,8 +18,8 @@ Pipeline (stages, in order; each is a submodule so exported node names carry its
     Eq. 7; finally re-modulated by (albedo + ALBEDO_EPS).
 
 Because a WSKPN weight depends only on the *source* pixel q, Eq. 3–4 equal
-boxsum(exp(I)·x) / boxsum(exp(I)): the ``"boxsum"`` kernel path (two separable box filters per
-kernel, constant in k).  The ``"unfold"`` path is the paper's formulation (unfold the
+boxsum(exp(I)·x) / boxsum(exp(I)): the ``"boxsum"`` kernel path (one box filter per kernel
+on a stack of w·x and w).  The ``"unfold"`` path is the paper's formulation (unfold the
 importance map into k² channels, softmax over them, weighted sum of the unfolded image) kept
 as the reference; both exclude taps outside the image (they get weight 0), so they agree at
 the borders too.  :meth:`WSKPN.deploy` fuses the RepVGG blocks and selects ``"boxsum"``.
@@ -27,7 +27,6 @@ the borders too.  :meth:`WSKPN.deploy` fuses the RepVGG blocks and selects ``"bo
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -41,18 +40,20 @@ from training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_inte
                                     temporal_accumulate)
 from training.specs import ModelSpec, register
 
-#: Importance values are clamped to ±IMPORTANCE_BOUND before exp: a weight ratio of
-#: exp(2·20) ≈ 2e17 already means "ignore", and bounded weights keep every window sum
-#: positive and far from float32 under/overflow, so no division by 0 for any network output.
-IMPORTANCE_BOUND = 20.0
 #: Fusion logits are clamped to ±LOGIT_BOUND before exp (by the prediction stage, for all its
 #: outputs), so the softmax of Eq. 5 needs no per-pixel maximum (a channel reduction, slow in
 #: onnxruntime).  It equals the exact softmax while every logit is within the bound: the
 #: shipped models' logits stayed within ±27 on 36 two-frame windows of 12 training scenes
-#: (checked when the bound was chosen).  Float32 range in :func:`fuse_boxsum`: a / boxmean(w)
-#: is at most exp(LOGIT_BOUND + IMPORTANCE_BOUND)·169/49 ≈ 4e26 (a 13×13 window in a corner),
-#: and the fused sums at most exp(LOGIT_BOUND)·M·max(x) ≈ 1e18·max(x).
+#: (checked when the bound was chosen).
 LOGIT_BOUND = 40.0
+#: Importance values share that bound, so the prediction stage's one clamp (fused into the
+#: last convolution) bounds both and the weights need no clamp of their own.  A weight ratio
+#: of exp(2·40) means "ignore" as surely as exp(2·20) did (the bound before, which the shipped
+#: models were trained with: their quality on the bench's test sets differs by < 0.001 dB).
+#: Float32 range in :func:`fuse_boxsum`: boxmean(w) >= exp(−40)·49/169 ≈ 1e-18 (a 13×13
+#: window in a corner), a / boxmean(w) <= exp(80)·169/49 ≈ 2e35, and the fused sums at most
+#: exp(LOGIT_BOUND)·M·max(x) ≈ 1e18·max(x): finite and never 0 for any network output.
+IMPORTANCE_BOUND = LOGIT_BOUND
 #: Kernel application variants (see module docstring); "boxsum" is the fast, deployed one.
 KERNEL_PATHS = ("boxsum", "unfold")
 #: Pixel layers WSKPN reads, and the channel count of the ImportanceNet input.
@@ -126,17 +127,19 @@ def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
 
 def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
     """Sum over the k×k window around each pixel of zero-padded ``x``, divided by k²:
-    (N, C, H, W) -> same.  Separable (1×k then k×1 average pools, count_include_pad so the
-    divisor is k² everywhere: ratios of two window means are ratios of window sums).
+    (N, C, H, W) -> same.  One k×k average pool (count_include_pad, so the divisor is k²
+    everywhere: ratios of two window means are ratios of window sums).
 
-    onnxruntime pools the channels of an image in parallel and each channel on one thread, so
-    a lone plane (C = 1) pools on one core; :func:`fuse_boxsum` pools C + 1 >= 2 channels.
+    One pool, not a 1×k then a k×1 pass: onnxruntime's 2-D pool costs about the same for
+    k = 3..13, and each pass over the (C + 1)-channel stack is a trip through memory
+    (1280x720, 2 threads, the six kernels of wskpn-3: the whole frame 12 ms faster in paired
+    runs); torch eager is within 15% either way.  onnxruntime pools the channels of an image
+    in parallel and each channel on one thread, so a lone plane (C = 1) pools on one core;
+    :func:`fuse_boxsum` pools C + 1 >= 2 channels.
     """
     if k == 1:
         return x
-    r = k // 2
-    x = F.avg_pool2d(x, (1, k), stride=1, padding=(0, r), count_include_pad=True)
-    return F.avg_pool2d(x, (k, 1), stride=1, padding=(r, 0), count_include_pad=True)
+    return F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=True)
 
 
 def importance_weights(importance: torch.Tensor) -> torch.Tensor:
@@ -160,14 +163,13 @@ def kernel_exponentials(pred: torch.Tensor, m: int) -> tuple[list, list]:
     ``pred[:, m:2m]`` as two lists of M (N, 1, H, W) planes, for ``pred`` (N, 2M, H, W) within
     ±LOGIT_BOUND (:class:`PredictionStage` clamps its output).
 
-    One exp over all 2M channels and one split, then the weights' tighter bound applied to
-    exp(·) (exp is monotonic: equal up to the rounding of exp(±IMPORTANCE_BOUND)).  Slicing
-    the two halves first costs onnxruntime a copy of every plane, and a clamp with
-    per-channel bounds (Min/Max with broadcast) ran 3x slower.
+    One exp over all 2M channels and one split: the clamp that ends the prediction stage is
+    both bounds (:data:`IMPORTANCE_BOUND` = :data:`LOGIT_BOUND`).  Slicing the two halves
+    first costs onnxruntime a copy of every plane; a clamp per weight plane after the exp cost
+    six more passes (1280x720: about 5 ms of the frame in paired runs).
     """
     planes = torch.exp(pred).split(1, dim=1)
-    lo, hi = math.exp(-IMPORTANCE_BOUND), math.exp(IMPORTANCE_BOUND)
-    return [p.clamp(lo, hi) for p in planes[:m]], list(planes[m:])
+    return list(planes[:m]), list(planes[m:])
 
 
 def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch.Tensor:
@@ -205,7 +207,7 @@ def fuse_boxsum(x: torch.Tensor, weights: Sequence[torch.Tensor], factors: Seque
     x: (N, C, H, W) irradiance; weights (:func:`importance_weights`), factors
     (:func:`fusion_factors`): M (N, 1, H, W) positive planes each.  Returns (N, C, H, W).
 
-    x carries an extra channel of ones, so one multiply and one pair of pools per kernel give
+    x carries an extra channel of ones, so one multiply and one pool per kernel give
     both sums, and the accumulated ones channel ends as Σ_i a_i: the softmax divides once.
     onnxruntime runs these (C + 1 = 4)-channel ops evenly on two threads; pooling plane by
     plane ran each vertical pass on one thread (1280x720, 2 threads: whole graph 254 -> 240 ms).
