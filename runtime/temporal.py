@@ -34,10 +34,11 @@ MIN_WEIGHT = 1e-3
 #: planes at 1280 wide) stay in the core's cache.  Measured at 1280x720 (before the buffers
 #: were reused): 16 rows 100 ms, 32 rows 124, 64 rows 139, the whole frame at once 280.
 BAND_ROWS = 16
-#: Band height when worker threads share the frame: each numpy call must do enough work to
-#: pay for taking the GIL back.  1280x720, 2 threads (one per half of the frame), this
-#: machine's 2 cores: 16-row bands 81 ms (one thread: 77), 64-row bands 58.
-THREADED_BAND_ROWS = 64
+#: Band height (about) when worker threads share the frame: each numpy call must do enough
+#: work to pay for taking the GIL back.  1280x720, 2 threads each taking 360 rows, this
+#: machine's 2 cores: 16-row bands 81 ms (one thread: 77), 60 rows 57, 72 rows 56, 90 rows
+#: 54, 120 rows 57.
+THREADED_BAND_ROWS = 90
 
 
 def reproject(states, motion, cur: dict, prev: dict, threads: int = 1):
@@ -93,9 +94,9 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
       preallocated per worker and reused (``out=``): no allocation per operation.
     * A tap whose bilinear weight is 0 over a whole band (integer or zero motion: a static
       camera) is skipped: its consistent weight would be 0 anyway.
-    * With ``threads`` > 1, each thread takes one contiguous share of the rows in
-      :data:`THREADED_BAND_ROWS` bands (numpy releases the GIL inside each call; small bands
-      made two threads slower than one).
+    * With ``threads`` > 1, each thread takes one contiguous share of the rows in bands of
+      about :data:`THREADED_BAND_ROWS` rows (numpy releases the GIL inside each call; small
+      bands made two threads slower than one).
     """
     n, _, h, w = motion.shape
     n_state = sum(st.shape[1] for st in states)
@@ -103,10 +104,12 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     acc = np.empty((n, n_state, h, w), dtype=dtype)
     history = np.empty((n, 1, h, w), dtype=motion.dtype)
     band = THREADED_BAND_ROWS if threads > 1 else BAND_ROWS
-    # Each thread takes a share of whole bands.  No result depends on the partition: every
-    # pixel sums its own four taps in the same order (a skipped tap would add 0).
-    bands = -(-h // band)
-    share = -(-bands // max(1, threads)) * band
+    # Each thread takes an equal share of the rows, cut into equal bands of about ``band``
+    # rows (whole 64-row bands split 720 rows 384/336: 4 ms slower).  No result depends on
+    # the partition: every pixel sums its own four taps in the same order (a skipped tap
+    # would add 0).
+    share = -(-h // max(1, threads))
+    band = -(-share // max(1, round(share / band)))
     for b in range(n):
         guides = [prev["depth"][b, 0]] + ([prev["position"][b, c] for c in range(3)] if use_pos else []) \
             + ([prev["normal"][b, c] for c in range(3)] if use_nrm else [])
