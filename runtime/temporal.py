@@ -30,15 +30,15 @@ DEPTH_TOLERANCE = 0.1
 MIN_WEIGHT = 1e-3
 
 
-#: numpy processes this many output rows at a time, so a band's per-tap temporaries (80 KB
-#: planes at 1280 wide) stay in the core's cache.  Measured at 1280x720 (before the buffers
-#: were reused): 16 rows 100 ms, 32 rows 124, 64 rows 139, the whole frame at once 280.
+#: numpy processes this many output rows at a time (all four taps of a band stacked), so a
+#: band's temporaries stay near the core.  1280x720, one thread: 8 rows 65 ms, 16 rows 65,
+#: 24 rows 68.
 BAND_ROWS = 16
 #: Band height (about) when worker threads share the frame: each numpy call must do enough
-#: work to pay for taking the GIL back.  1280x720, 2 threads each taking 360 rows, this
-#: machine's 2 cores: 16-row bands 81 ms (one thread: 77), 60 rows 57, 72 rows 56, 90 rows
-#: 54, 120 rows 57.
-THREADED_BAND_ROWS = 90
+#: work to pay for taking the GIL back (np.take holds it).  1280x720, 2 threads each taking
+#: 360 rows, this machine's 2 cores: 16-row bands 52 ms, 30 rows 46, 45 rows 47, 60 rows 48,
+#: 90 rows 56.
+THREADED_BAND_ROWS = 45
 
 
 def reproject(states, motion, cur: dict, prev: dict, threads: int = 1):
@@ -84,13 +84,15 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 165 ms
     with per-tap gathers of a stacked (C, H*W) array over 32-row bands on two threads, 125 ms
     planar as below, 100 ms with the preallocated buffers, 58 ms with 64-row bands split
-    between two threads on a quieter day that measured 77 ms for one thread).
+    between two threads, 52 ms in equal shares, 46 ms with the four taps stacked).
 
     * Planar: every guide and state channel is a contiguous (H*W,) plane gathered with one 1-D
-      ``np.take`` per tap, and every test is plane arithmetic.  Gathering along axis 1 of a
-      (C, H*W) stack costs 2-3x more; a channels-last table makes the tests strided (20-40x
-      slower per element).
-    * Bands of rows keep a band's temporaries in the core's cache, and the temporaries are
+      ``np.take`` per band (all four taps at once), and every test is plane arithmetic.
+      Gathering along axis 1 of a (C, H*W) stack costs 2-3x more; a channels-last table makes
+      the tests strided (2-3x slower per element).
+    * Taps stacked (4, rows, W): a quarter of the numpy calls, and of the hand-offs of the
+      GIL between the worker threads (one thread: 75 -> 65 ms; two: 52 -> 46 ms).
+    * Bands of rows keep a band's temporaries near the core, and the temporaries are
       preallocated per worker and reused (``out=``): no allocation per operation.
     * A tap whose bilinear weight is 0 over a whole band (integer or zero motion: a static
       camera) is skipped: its consistent weight would be 0 anyway.
@@ -120,102 +122,111 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     return _split_states(acc, states), history
 
 
+#: Bilinear taps (dx, dy) in the order every path sums them.
+_TAPS = ((0, 0), (1, 0), (0, 1), (1, 1))
+
+
 def _reproject_band_rows(b, guides, planes, motion, cur, use_pos, use_nrm, acc, history,
                          y_start: int, y_end: int, band: int) -> None:
     """Rows ``y_start`` .. ``y_end`` of image ``b`` for :func:`_reproject_numpy`, ``band`` rows
     at a time, into ``acc`` and ``history``; ``guides`` and ``planes``: flat previous guide and
-    state planes of image ``b``."""
+    state planes of image ``b``.  The taps of a band are stacked, (taps, rows, W), so each
+    gather and test is one numpy call for all four taps."""
     _, _, h, w = motion.shape
     ftype = motion.dtype
     dtype = acc.dtype
     xs = np.arange(w, dtype=ftype)
     rows = min(band, y_end - y_start)
-    buf = lambda dt=ftype: np.empty((rows, w), dtype=dt)  # noqa: E731
-    wgt, gx, gy, wsum, t0, t1, t2 = (buf() for _ in range(7))
-    ok, tmp_ok = buf(bool), buf(bool)
-    idx = buf(np.int64)
-    g = [buf() for _ in guides]
-    sums = [buf(dtype) for _ in planes]
-    tap = buf(dtype)
+    buf = lambda k, dt=ftype: np.empty((k, rows, w), dtype=dt)  # noqa: E731
+    fxs, fys = buf(2), buf(2)              # bilinear factors [1 - f, f] along x and y
+    wgt, t0, t1, t2, tap = buf(4), buf(4), buf(4), buf(4), buf(4, dtype)
+    ok, tmp_ok = buf(4, bool), buf(4, bool)
+    idx = buf(4, np.int64)
+    g = [buf(4) for _ in guides]
+    wsum = np.empty((rows, w), ftype)
+    offsets = np.array([dy * w + dx for dx, dy in _TAPS], np.int64)[:, None, None]
     for y in range(y_start, y_end, band):
         y1 = min(y_end, y + band)
         r = y1 - y
-        sl = (slice(0, r), slice(None))
         # Clamped just off-screen (NaN -> -2): far or broken motion vectors must give
         # small indices (np.take's "wrap" steps through huge ones one period at a time).
         px = np.fmin(np.fmax(xs + motion[b, 0, y:y1], -2), w + 1)
         py = np.fmin(np.fmax(np.arange(y, y1, dtype=ftype)[:, None] + motion[b, 1, y:y1], -2), h + 1)
         x0, y0 = np.floor(px), np.floor(py)
-        fx, fy = px - x0, py - y0
-        np.subtract(1, fx, out=gx[sl])
-        np.subtract(1, fy, out=gy[sl])
+        fx, fy = fxs[:, :r], fys[:, :r]
+        np.subtract(px, x0, out=fx[1])
+        np.subtract(py, y0, out=fy[1])
+        np.subtract(1, fx[1], out=fx[0])
+        np.subtract(1, fy[1], out=fy[0])
+        # A tap whose bilinear weight is 0 over the whole band (integer motion) is skipped:
+        # its consistent weight would be 0 anyway.
+        taps = [k for k, (dx, dy) in enumerate(_TAPS)
+                if (dx == 0 or fx[1].any()) and (dy == 0 or fy[1].any())]
+        n_taps = len(taps)
         ix, iy = x0.astype(np.int64), y0.astype(np.int64)
-        base = iy * w + ix
         cur_depth = cur["depth"][b, 0, y:y1]
         cur_hit = cur_depth > 0
         in_x = ((ix >= 0) & (ix <= w - 1), (ix >= -1) & (ix <= w - 2))
         in_y = (((iy >= 0) & (iy <= h - 1)) & cur_hit, ((iy >= -1) & (iy <= h - 2)) & cur_hit)
+        sl = (slice(0, n_taps), slice(0, r))
+        wk, o, to, ik = wgt[sl], ok[sl], tmp_ok[sl], idx[sl]
+        a, c2, d = t0[sl], t1[sl], t2[sl]
+        for j, k in enumerate(taps):
+            dx, dy = _TAPS[k]
+            np.multiply(fx[dx], fy[dy], out=wk[j])
+            np.logical_and(in_x[dx], in_y[dy], out=o[j])
+        # Off-screen taps read some valid pixel (the flat index wraps: "wrap" gathers
+        # faster than "clip"); ``in_x`` / ``in_y`` drop them.
+        np.add(iy * w + ix, offsets if n_taps == 4 else offsets[taps], out=ik)
+        gk = [np.take(p, ik, mode="wrap", out=q[sl]) for p, q in zip(guides, g)]
+        np.greater(gk[0], 0, out=to)
+        o &= to
+        c = 1
         if use_pos:
             cur_pos = cur["position"][b, :, y:y1]
-            tol2 = (POSITION_TOLERANCE * cur_depth) ** 2
+            np.subtract(gk[1], cur_pos[0], out=a)
+            np.multiply(a, a, out=a)
+            for j in (1, 2):
+                np.subtract(gk[1 + j], cur_pos[j], out=d)
+                np.multiply(d, d, out=d)
+                a += d
+            np.less_equal(a, (POSITION_TOLERANCE * cur_depth) ** 2, out=to)
+            o &= to
+            c = 4
         else:
-            tol_d = DEPTH_TOLERANCE * cur_depth
+            np.subtract(gk[0], cur_depth, out=a)
+            np.abs(a, out=a)
+            np.less_equal(a, DEPTH_TOLERANCE * cur_depth, out=to)
+            o &= to
         if use_nrm:
             cur_nrm = cur["normal"][b, :, y:y1]
-        ws = wsum[sl]
-        ws.fill(0)
-        for s in sums:
-            s[sl].fill(0)
-        for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            wk = wgt[sl]
-            np.multiply(fx if dx else gx[sl], fy if dy else gy[sl], out=wk)
-            if not wk.any():
-                continue
-            # Off-screen taps read some valid pixel (the flat index wraps: "wrap" gathers
-            # faster than "clip"); ``in_x`` / ``in_y`` drop them.
-            ik = idx[sl]
-            np.add(base, dy * w + dx, out=ik)
-            gk = [np.take(p, ik, mode="wrap", out=q[sl]) for p, q in zip(guides, g)]
-            o, to = ok[sl], tmp_ok[sl]
-            np.logical_and(in_x[dx], in_y[dy], out=o)
-            np.greater(gk[0], 0, out=to)
+            np.multiply(gk[c], cur_nrm[0], out=c2)
+            for j in (1, 2):
+                np.multiply(gk[c + j], cur_nrm[j], out=d)
+                c2 += d
+            np.greater_equal(c2, NORMAL_COS_TOLERANCE, out=to)
             o &= to
-            a, c2, d = t0[sl], t1[sl], t2[sl]
-            c = 1
-            if use_pos:
-                np.subtract(gk[1], cur_pos[0], out=a)
-                np.multiply(a, a, out=a)
-                for j in (1, 2):
-                    np.subtract(gk[1 + j], cur_pos[j], out=d)
-                    np.multiply(d, d, out=d)
-                    a += d
-                np.less_equal(a, tol2, out=to)
-                o &= to
-                c = 4
-            else:
-                np.subtract(gk[0], cur_depth, out=a)
-                np.abs(a, out=a)
-                np.less_equal(a, tol_d, out=to)
-                o &= to
-            if use_nrm:
-                np.multiply(gk[c], cur_nrm[0], out=c2)
-                for j in (1, 2):
-                    np.multiply(gk[c + j], cur_nrm[j], out=d)
-                    c2 += d
-                np.greater_equal(c2, NORMAL_COS_TOLERANCE, out=to)
-                o &= to
-            wk *= o
-            ws += wk
-            tk = tap[sl]
-            for s, p in zip(sums, planes):
-                np.take(p, ik, mode="wrap", out=tk)
-                tk *= wk
-                s[sl] += tk
+        wk *= o
+        ws = _sum_taps(wk, wsum[:r])
         hist = (ws >= MIN_WEIGHT).astype(ftype)
         scale = hist / np.maximum(ws, MIN_WEIGHT)
-        for c, s in enumerate(sums):
-            np.multiply(s[sl], scale, out=acc[b, c, y:y1])
+        tk = tap[sl]
+        for c, p in enumerate(planes):
+            np.take(p, ik, mode="wrap", out=tk)
+            tk *= wk
+            np.multiply(_sum_taps(tk, acc[b, c, y:y1]), scale, out=acc[b, c, y:y1])
         history[b, 0, y:y1] = hist
+
+
+def _sum_taps(stack, out):
+    """``out`` = stack[0] + stack[1] + ..., summed in tap order (as the torch path sums)."""
+    if len(stack) == 1:
+        out[...] = stack[0]
+        return out
+    np.add(stack[0], stack[1], out=out)
+    for s in stack[2:]:
+        out += s
+    return out
 
 
 def _reproject_rows(stacked, motion, cur: dict, y_offset: int, h_full: int, use_pos: bool, use_nrm: bool):
