@@ -3,7 +3,7 @@
 numpy releases the GIL inside each array operation, so a few threads that each run large
 enough operations use more than one core; many small operations make the threads wait for
 the GIL instead.  Measured on this project's 2-core machine at 1280x720: layer conversion
-21.5 -> 12.3 ms, reprojection 77 -> 58 ms with two threads.  More threads than two were not
+21.5 -> 12.3 ms, reprojection 65 -> 46 ms with two threads.  More threads than two were not
 measured and contend for the GIL, so :func:`default_threads` stops at two.
 """
 from __future__ import annotations
