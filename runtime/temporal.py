@@ -31,13 +31,13 @@ MIN_WEIGHT = 1e-3
 
 
 #: numpy processes this many output rows at a time (all four taps of a band stacked), so a
-#: band's temporaries stay near the core.  1280x720, one thread: 8 rows 65 ms, 16 rows 65,
-#: 24 rows 68.
+#: band's temporaries stay near the core.  1280x720, one thread: 8 rows 61 ms, 16 rows 61,
+#: 24 rows 62.
 BAND_ROWS = 16
 #: Band height (about) when worker threads share the frame: each numpy call must do enough
 #: work to pay for taking the GIL back (np.take holds it).  1280x720, 2 threads each taking
-#: 360 rows, this machine's 2 cores: 16-row bands 52 ms, 30 rows 46, 45 rows 47, 60 rows 48,
-#: 90 rows 56.
+#: 360 rows, this machine's 2 cores: 16-row bands 49 ms, 30 rows 42, 45 rows 42, 60 rows 44,
+#: 90 rows 52.
 THREADED_BAND_ROWS = 45
 
 
@@ -84,7 +84,8 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 165 ms
     with per-tap gathers of a stacked (C, H*W) array over 32-row bands on two threads, 125 ms
     planar as below, 100 ms with the preallocated buffers, 58 ms with 64-row bands split
-    between two threads, 52 ms in equal shares, 46 ms with the four taps stacked).
+    between two threads, 52 ms in equal shares, 46 ms with the four taps stacked, 42 ms with
+    one unsigned compare per bounds test).
 
     * Planar: every guide and state channel is a contiguous (H*W,) plane gathered with one 1-D
       ``np.take`` per band (all four taps at once), and every test is plane arithmetic.
@@ -166,8 +167,10 @@ def _reproject_band_rows(b, guides, planes, motion, cur, use_pos, use_nrm, acc, 
         ix, iy = x0.astype(np.int64), y0.astype(np.int64)
         cur_depth = cur["depth"][b, 0, y:y1]
         cur_hit = cur_depth > 0
-        in_x = ((ix >= 0) & (ix <= w - 1), (ix >= -1) & (ix <= w - 2))
-        in_y = (((iy >= 0) & (iy <= h - 1)) & cur_hit, ((iy >= -1) & (iy <= h - 2)) & cur_hit)
+        # Tap inside the frame: 0 <= ix + dx < w as one unsigned compare (a negative index
+        # wraps to a huge unsigned one); likewise in y, where a missed current pixel fails too.
+        in_x = (ix.view(np.uint64) < w, (ix + 1).view(np.uint64) < w)
+        in_y = ((iy.view(np.uint64) < h) & cur_hit, ((iy + 1).view(np.uint64) < h) & cur_hit)
         sl = (slice(0, n_taps), slice(0, r))
         wk, o, to, ik = wgt[sl], ok[sl], tmp_ok[sl], idx[sl]
         a, c2, d = t0[sl], t1[sl], t2[sl]
