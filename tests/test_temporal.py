@@ -139,8 +139,8 @@ def test_numpy_fast_path_matches_torch_for_every_guide_set_and_batch(keys):
 @pytest.mark.parametrize("h", [5, 2 * BAND + 1, 3 * BAND + 17])
 def test_threads_split_rows_without_changing_the_result(threads, h):
     """numpy with worker threads (each an equal share of the rows, in bands) equals one
-    thread to the bit, for heights below one band, one row past two bands and uneven shares; batch of 2,
-    integer motion on part of the frame (skipped taps in some bands only)."""
+    thread to the bit, for heights below one band, one row past two bands and uneven shares;
+    batch of 2, integer motion on part of the frame (skipped taps in some bands only)."""
     rng = np.random.default_rng(h)
     n, w = 2, 7
     keys = ("depth", "position", "normal")

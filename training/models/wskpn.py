@@ -144,7 +144,7 @@ def _window_mean(x: torch.Tensor, k: int) -> torch.Tensor:
 
 def importance_weights(importance: torch.Tensor) -> torch.Tensor:
     """exp(I) of I clamped to ±IMPORTANCE_BOUND: (N, M, H, W) -> weights in
-    [exp(−bound), exp(bound)] ≈ [2e-9, 5e8].
+    [exp(−bound), exp(bound)] ≈ [4e-18, 2e17].
 
     Every window sum is then positive and finite in float32, so Eq. 3 never divides by 0;
     a per-image maximum (the usual softmax shift) would cancel in Eq. 3 and costs a reduction.
