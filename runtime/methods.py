@@ -135,6 +135,18 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
     raise ValueError(f"unknown method {name!r}: give an .onnx file or one of {', '.join(BUILTIN)}")
 
 
+def check_distinct(names: dict[str, str]) -> None:
+    """Raise ValueError when two methods share a name: ``names`` maps each source (a file or a
+    built-in method) to the name its results are reported under, and results are keyed by
+    that name (two exports of one spec would otherwise be pooled into one row)."""
+    seen: dict[str, str] = {}
+    for source, name in names.items():
+        if name in seen:
+            raise ValueError(f"{seen[name]} and {source} are both reported as {name!r} (methods are "
+                             "named by their spec): compare them in separate runs")
+        seen[name] = source
+
+
 def shipped_models(root: str | os.PathLike | None = None) -> list[str]:
     """Paths of the ONNX models shipped in the repository's ``models/`` folder, sorted."""
     from pathlib import Path

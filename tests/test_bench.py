@@ -168,3 +168,21 @@ def test_cuda_bench_says_clearly_when_there_is_no_cuda_provider(tmp_path, capsys
         assert rc == 2
         err = capsys.readouterr().err
         assert "no CUDA provider" in err and "onnxruntime-gpu" in err and "Traceback" not in err
+
+
+def test_two_files_of_one_spec_are_refused_by_name(tmp_path, capsys):
+    """bench and evaluate report methods by spec name: two exports of one spec would be pooled
+    into one row (it crashed on mismatched shapes before), so both refuse, naming both files."""
+    import shutil
+
+    src = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
+    a, b = tmp_path / "a.onnx", tmp_path / "b.onnx"
+    shutil.copy(src, a)
+    shutil.copy(src, b)
+    for argv in (["bench", str(a), str(b), "--quick", "--no-torch", "--methods", "noisy",
+                  "--out", str(tmp_path / "out")],
+                 ["evaluate", str(a), str(b), "--data", str(tmp_path)]):
+        assert cli_main(argv) == 2, argv[0]
+        err = capsys.readouterr().err
+        assert str(a) in err and str(b) in err and "'wskpn-3'" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

@@ -337,6 +337,7 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     :data:`STILLS` / :data:`SEQUENCES`; with ``quick``, ``data`` serves both, else :data:`QUICK`).
     """
     from runtime.denoiser import Denoiser
+    from runtime.methods import check_distinct
 
     t_start = time.perf_counter()
     models = _model_paths(models)
@@ -347,6 +348,7 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     threads_used = threads or len(os.sched_getaffinity(0))
     machine = timing.cpu_name() if device == "cpu" else f"{gpu_name()} (CUDA), host {timing.cpu_name()}"
     names = {p: Denoiser.load(p, log=lambda m: None).contract.spec_name for p in models}
+    check_distinct({**{b: b for b in builtins}, **names})
     res = {"command": command, "device": machine, "compute_device": device, "threads": threads_used, "chart_size": chart,
            "sizes": sizes, "frames": frames, "warmup": warmup, "models": names,
            "builtins": list(builtins)}

@@ -19,7 +19,7 @@ import numpy as np
 from runtime import metrics
 from runtime.args import add_data, add_threads
 from runtime.frames import Frame, FrameError, frame_paths, pixel_means, read_frame
-from runtime.methods import load_method
+from runtime.methods import check_distinct, load_method
 
 #: Metric columns, in table order (TRMAE is per sequence, the others over all frames).
 METRICS = ("psnr", "ssim", "flip", "smape", "relmse", "trmae")
@@ -115,8 +115,10 @@ def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, thre
     """{method: {psnr, ssim, flip, smape, relmse, trmae, frames}} over every sequence in
     ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names; ``noisy`` and
     (with ``oidn``) ``oidn-high`` are always added."""
+    sources = default_methods(models, oidn)
+    methods = [load_method(n, threads=threads) for n in sources]
+    check_distinct({n: m.name for n, m in zip(sources, methods)})
     seqs = read_sequences(data, stills)
-    methods = [load_method(n, threads=threads) for n in default_methods(models, oidn)]
     results = run_methods(methods, seqs, spp, log=log)
     results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
                          "stills": bool(stills)}
