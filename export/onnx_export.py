@@ -159,7 +159,10 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
         stages=tuple({"name": s, "node_prefix": node_prefix(s)} for s in spec.stages),
         state=tuple({"name": s.name, "channels": s.channels, "input": state_input_name(s.name),
                      "output": state_output_name(s.name)} for s in spec.state),
-        history=HISTORY if spec.state else "", paper=dict(spec.paper), export=dict(export_info or {}))
+        history=HISTORY if spec.state else "",
+        accumulate=tuple({"layer": a.layer, "input": a.layer, "channels": _LAYER_CHANNELS[a.layer], "alpha": a.alpha}
+                         for a in spec.accumulate),
+        paper=dict(spec.paper), export=dict(export_info or {}))
 
 
 def _torch_outputs(model, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:

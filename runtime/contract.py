@@ -14,7 +14,8 @@ The model interface the contract describes (every method follows it, see
   distance from the camera centre, as in :data:`runtime.frames.PIXEL_LAYERS`), then per temporal state entry
   ``prev_<name>`` (the previous frame's ``next_<name>`` reprojected to this frame), then
   :data:`HISTORY` (N, 1, H, W) in [0, 1], the reprojection-validity mask (only when the model
-  has state);
+  has state).  A layer the contract lists under ``accumulate`` is fed as the driver's temporal
+  accumulation of that layer (:func:`runtime.temporal.accumulate`), not the frame's value;
 * outputs: :data:`OUTPUT` (N, 3, H, W) linear HDR, then ``next_<name>`` per state entry;
 * graph node names start with ``/<stage>/`` for one of the contract's stages, so a profiler's
   per-node times sum to per-stage times (:meth:`Contract.stage_of`).
@@ -25,8 +26,9 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-#: Version of the metadata layout below; a reader refuses files with a newer one.
-FORMAT_VERSION = 1
+#: Version of the metadata layout below; a reader refuses files with a newer one.  2 added
+#: :data:`KEY_ACCUMULATE` (a version-1 reader would feed the raw layer: silently wrong).
+FORMAT_VERSION = 2
 #: Every mcdenoise key starts with this.
 PREFIX = "mcdenoise."
 
@@ -41,6 +43,8 @@ KEY_OUTPUTS = PREFIX + "outputs"
 KEY_STAGES = PREFIX + "stages"
 KEY_STATE = PREFIX + "state"
 KEY_HISTORY = PREFIX + "history_input"
+#: Optional (absent: nothing accumulated); format version 2 and later.
+KEY_ACCUMULATE = PREFIX + "accumulate"
 KEY_PAPER = PREFIX + "paper"
 KEY_EXPORT = PREFIX + "export"
 #: Keys a file must have (KEY_EXPORT is informational and optional).
@@ -82,6 +86,8 @@ class Contract:
     stages:  {"name", "node_prefix"} in execution order
     state:   {"name", "channels", "input" (graph input name), "output" (graph output name)}
     history: name of the history-mask input ("" when the model has no state)
+    accumulate: {"layer", "input" (graph input name), "channels", "alpha"}: inputs the driver
+             feeds as their temporal accumulation with current-frame weight ``alpha``
     paper:   the paper's reference timing row: "table", "method", "device", "resolution"
              strings and "<stage>_ms" / "total_ms" numbers (milliseconds on the paper's GPU)
     export:  informational: opset, torch version, parity error measured at export
@@ -98,6 +104,7 @@ class Contract:
     stages: tuple
     state: tuple
     history: str
+    accumulate: tuple = ()
     paper: dict = field(default_factory=dict)
     export: dict = field(default_factory=dict)
 
@@ -108,6 +115,11 @@ class Contract:
     @property
     def output_names(self) -> list[str]:
         return [o["name"] for o in self.outputs]
+
+    @property
+    def temporal(self) -> bool:
+        """Whether the driver keeps anything between frames (model state or accumulations)."""
+        return bool(self.state or self.accumulate)
 
     @property
     def stage_names(self) -> list[str]:
@@ -173,6 +185,8 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
         raise ValueError(f"model metadata {KEY_PAPER!r}: expected a JSON object")
     export = js(KEY_EXPORT) if KEY_EXPORT in meta else {}
     history = meta[KEY_HISTORY]
+    accumulate = _check_list(KEY_ACCUMULATE, js(KEY_ACCUMULATE), ("layer", "input", "channels", "alpha")) \
+        if KEY_ACCUMULATE in meta else ()
 
     in_names = [i["name"] for i in inputs]
     out_names = [o["name"] for o in outputs]
@@ -187,10 +201,22 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
                              f"not among the graph's inputs {in_names} / outputs {out_names}")
     if state and history not in in_names:
         raise ValueError(f"model has state but its history input {history!r} is not among {in_names}")
+    fed = {i["name"]: i for i in inputs}
+    for a in accumulate:
+        i = fed.get(a["input"])
+        if i is None or i["layer"] != a["layer"] or i["channels"] != a["channels"]:
+            raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: {a['layer']!r} -> input {a['input']!r} "
+                             f"({a['channels']} channels) does not match the graph's inputs {in_names}")
+        alpha = a["alpha"]
+        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha <= 1:
+            raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: alpha of {a['layer']!r} must be in (0, 1], "
+                             f"got {alpha!r}")
+    if len({a["input"] for a in accumulate}) != len(accumulate):
+        raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: an input is accumulated twice")
     return Contract(version=version, spec_name=meta[KEY_SPEC_NAME], model_type=meta[KEY_MODEL_TYPE],
                     spec_toml=meta[KEY_SPEC_TOML], spec_hash=meta[KEY_SPEC_HASH],
                     code_hash=meta[KEY_CODE_HASH], inputs=inputs, outputs=outputs, stages=stages,
-                    state=state, history=history, paper=paper, export=export)
+                    state=state, history=history, accumulate=accumulate, paper=paper, export=export)
 
 
 def contract_metadata(contract: Contract) -> dict[str, str]:
@@ -210,6 +236,7 @@ def contract_metadata(contract: Contract) -> dict[str, str]:
         KEY_STAGES: dump(list(contract.stages)),
         KEY_STATE: dump(list(contract.state)),
         KEY_HISTORY: contract.history,
+        KEY_ACCUMULATE: dump(list(contract.accumulate)),
         KEY_PAPER: dump(contract.paper),
         KEY_EXPORT: dump(contract.export),
     }

@@ -67,6 +67,11 @@ def _as_frame(frame) -> Frame:
     raise FrameError(f"frame: expected a Frame, a dict of layers or an (H, W, 3) array, got {type(frame).__name__}")
 
 
+def _accum_key(entry: dict) -> str:
+    """Key of an accumulated input in the driver's state (apart from the model's state names)."""
+    return "accumulate:" + entry["input"]
+
+
 class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
@@ -192,7 +197,7 @@ class Denoiser:
             # Each layer is converted to planes and sanitised once, whether the model, the
             # guide buffers or the reprojection reads it.
             extra = [g for g in GUIDE_LAYERS if getattr(fr, g) is not None]
-            if self.contract.state and fr.motion is not None:
+            if self.contract.temporal and fr.motion is not None:
                 extra.append("motion")
             # Two buffer sets: this frame fills the one the kept previous guides are not in
             # (also after a frame that failed half-way).
@@ -215,7 +220,7 @@ class Denoiser:
                     a = a * np.float32(self.exposure)
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
-            feeds.update(self._state_inputs(planes.get("motion"), guides, h, w))
+            accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
         with tm.stage(timing.GRAPH):
             outs = self.session.run(None, feeds)
         with tm.stage(timing.POSTPROCESS):
@@ -244,7 +249,7 @@ class Denoiser:
             if named is None:
                 self._state, self._guides = None, None
             else:
-                self._state = {}
+                self._state = accumulated
                 for st in self.contract.state:
                     arr = named[st["output"]].astype(np.float32, copy=False)
                     if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
@@ -264,27 +269,36 @@ class Denoiser:
             g["depth"] = np.ones((1, 1, *fr.size), np.float32)
         return g
 
-    def _state_inputs(self, motion, guides, h: int, w: int) -> dict[str, np.ndarray]:
-        """Reprojected state inputs and the history mask; ``motion`` (1, 2, H, W) sanitised
-        (non-finite -> 0) or None."""
-        feeds = {}
-        if not self.contract.state:
-            return feeds
+    def _state_inputs(self, motion, guides, h: int, w: int, feeds: dict) -> dict[str, np.ndarray]:
+        """Add the reprojected state inputs and the history mask to ``feeds``, and replace each
+        accumulated input (``contract.accumulate``) by its accumulation; returns the
+        accumulations {state key: array} to keep for the next frame.  ``motion`` (1, 2, H, W)
+        sanitised (non-finite -> 0) or None; ``feeds`` holds this frame's (sanitised) inputs."""
+        acc = self.contract.accumulate
+        if not self.contract.temporal:
+            return {}
         if self._state is None:
             for st in self.contract.state:
                 feeds[st["input"]] = np.zeros((1, st["channels"], h, w), np.float32)
-            feeds[self.contract.history] = np.zeros((1, 1, h, w), np.float32)
-            return feeds
+            if self.contract.state:
+                feeds[self.contract.history] = np.zeros((1, 1, h, w), np.float32)
+            # A new history starts at the frame itself (accumulate() with history 0).
+            return {_accum_key(a): feeds[a["input"]] for a in acc}
         if motion is None:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)
-        names = [st["name"] for st in self.contract.state]
-        warped, history = reproject([self._state[n] for n in names], motion, guides, self._guides,
-                                    threads=self.driver_threads)
+        keys = [st["name"] for st in self.contract.state] + [_accum_key(a) for a in acc]
+        blend = [None] * len(self.contract.state) + [(feeds[a["input"]], float(a["alpha"])) for a in acc]
+        warped, history = reproject([self._state[k] for k in keys], motion, guides, self._guides,
+                                    threads=self.driver_threads, blend=blend)
         for st, arr in zip(self.contract.state, warped):
             feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
-        feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)
-        return feeds
+        if self.contract.state:
+            feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)
+        kept = {}
+        for a, arr in zip(acc, warped[len(self.contract.state):]):
+            feeds[a["input"]] = kept[_accum_key(a)] = np.ascontiguousarray(arr, dtype=np.float32)
+        return kept
 
     # ------------------------------------------------------------------ timing
     def stage_times(self) -> list[dict[str, float]]:

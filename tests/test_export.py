@@ -150,6 +150,10 @@ def test_contract_round_trips(name, exported):
     assert [(s["name"], s["channels"], s["input"], s["output"]) for s in con.state] == \
         [(s.name, s.channels, f"prev_{s.name}", f"next_{s.name}") for s in spec.state]
     assert con.history == ("history" if spec.state else "")
+    channels = {i["name"]: i["channels"] for i in con.inputs}
+    assert [(a["layer"], a["input"], a["channels"], a["alpha"]) for a in con.accumulate] == \
+        [(a.layer, a.layer, channels[a.layer], a.alpha) for a in spec.accumulate]
+    assert con.temporal == bool(spec.state or spec.accumulate)
     assert con.paper == dict(spec.paper)
     assert con.export["opset"] >= 17 and con.export["parity_max_rel_error"] == report.max_parity_error
     assert C.parse_contract(C.contract_metadata(con)) == con
@@ -171,6 +175,25 @@ def test_parse_contract_errors(exported):
     bad_layout[0]["layout"] = "NHWC"
     with pytest.raises(ValueError, match="only NCHW"):
         C.parse_contract({**good, C.KEY_INPUTS: json.dumps(bad_layout)})
+
+
+def test_parse_contract_checks_accumulate(exported):
+    good = _session(exported["wskpn-3"][2]).get_modelmeta().custom_metadata_map
+    acc = json.loads(good[C.KEY_ACCUMULATE])
+    assert acc == [{"layer": "color", "input": "color", "channels": 3, "alpha": 0.2}]
+    for change, pattern in [({"input": "colour"}, "does not match the graph's inputs"),
+                            ({"channels": 1}, "does not match the graph's inputs"),
+                            ({"alpha": 0}, r"alpha of 'color' must be in \(0, 1\], got 0"),
+                            ({"alpha": "0.2"}, r"must be in \(0, 1\], got '0.2'")]:
+        with pytest.raises(ValueError, match=pattern):
+            C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps([{**acc[0], **change}])})
+    with pytest.raises(ValueError, match="accumulated twice"):
+        C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps(acc * 2)})
+    with pytest.raises(ValueError, match=r"'mcdenoise.accumulate'\[0\]: missing field\(s\) \['alpha'\]"):
+        C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps([{k: v for k, v in acc[0].items() if k != "alpha"}])})
+    # A format-1 file (before accumulation existed) has no such key: nothing accumulated.
+    old = {k: v for k, v in good.items() if k != C.KEY_ACCUMULATE}
+    assert C.parse_contract({**old, C.KEY_VERSION: "1"}).accumulate == ()
 
 
 @pytest.mark.parametrize("name", SPECS)

@@ -18,17 +18,20 @@ from runtime.methods import shipped_models
 from training.bench import synthetic_frame
 
 SPEC = "wskpn-3"
+#: The driver's two kinds of temporal state: wskpn-3's colour is accumulated by the driver
+#: ([[accumulate]]), nbg-2l-1g carries a model state (prev_accum / next_accum / history).
+TEMPORAL_SPECS = [SPEC, "nbg-2l-1g"]
 
 
-@pytest.fixture(scope="module")
-def model_file(tmp_path_factory):
+@pytest.fixture(scope="module", params=TEMPORAL_SPECS)
+def model_file(tmp_path_factory, request):
     from export.onnx_export import export_model
     from training.specs import build_model, load_spec
 
     torch.manual_seed(0)
-    spec = load_spec(SPEC)
+    spec = load_spec(request.param)
     model = build_model(spec).eval()
-    path = tmp_path_factory.mktemp("model") / f"{SPEC}.onnx"
+    path = tmp_path_factory.mktemp("model") / f"{request.param}.onnx"
     export_model(spec, model, path)
     return path, spec, model
 
@@ -69,7 +72,8 @@ def test_driver_matches_training_unroll(model_file):
             batch.setdefault(k, []).append(torch.from_numpy(v))
     batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}  # (1, T, C, H, W)
     with torch.no_grad():
-        ref = run_window(model, batch, {s.name: s.channels for s in spec.state})
+        ref = run_window(model, batch, {s.name: s.channels for s in spec.state},
+                         accumulate=[(a.layer, a.alpha) for a in spec.accumulate])
     for t in range(2):
         np.testing.assert_allclose(outs[t], ref[t]["output"][0].numpy().transpose(1, 2, 0),
                                    rtol=1e-4, atol=1e-5)

@@ -128,6 +128,25 @@ def test_bad_inputs_are_rejected(name):
         parse_spec(re.sub(r"(?m)^stages\s*=.*$", "", raw), "i.toml")
 
 
+def test_accumulate_is_validated():
+    raw = load_spec("wskpn-3").raw
+    assert [(a.layer, a.alpha) for a in parse_spec(raw, "a.toml").accumulate] == [("color", 0.2)]
+    block = '[[accumulate]]\nlayer = "color"\n'
+    assert block in raw
+    with pytest.raises(SpecError, match=r"a.toml: \[\[accumulate\]\] #0: alpha: .* \(0, 1\], got 0.0"):
+        parse_spec(_replace_key(raw, "alpha", "0.0"), "a.toml")
+    with pytest.raises(SpecError, match=r"\[\[accumulate\]\] #0: layer: unknown 'colour'"):
+        parse_spec(raw.replace(block, block.replace('"color"', '"colour"')), "a.toml")
+    with pytest.raises(SpecError, match=r"accumulate: layer 'position' is not among the model's inputs"):
+        parse_spec(raw.replace(block, block.replace('"color"', '"position"')), "a.toml")
+    with pytest.raises(SpecError, match=r"accumulate: duplicate layers in \['color', 'color'\]"):
+        parse_spec(raw.replace(block, block + "alpha = 0.5\n" + block), "a.toml")
+    with pytest.raises(SpecError, match=r"\[\[accumulate\]\] #0: unknown key 'decay'"):
+        parse_spec(raw.replace(block, block + "decay = 0.5\n"), "a.toml")
+    with pytest.raises(SpecError, match=r"accumulate: expected an array of tables"):
+        parse_spec('accumulate = "color"\n' + re.sub(r"\[\[accumulate\]\]\n.*\n.*\n", "", raw), "a.toml")
+
+
 @pytest.mark.parametrize("name", SPECS)
 def test_paper_table_is_checked(name):
     spec = load_spec(name)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.temporal import THREADED_BAND_ROWS as BAND, reproject
+from runtime.temporal import THREADED_BAND_ROWS as BAND, accumulate, reproject
 
 
 def _scene(h=6, w=8, shift=1.0):
@@ -155,6 +155,34 @@ def test_threads_split_rows_without_changing_the_result(threads, h):
     np.testing.assert_array_equal(ht, h1)
     for a, b in zip(w1, wt):
         np.testing.assert_array_equal(b, a)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_blend_is_accumulate_of_the_warped_state_to_the_bit(threads):
+    """reproject(blend=...) returns accumulate(current, warped, history, alpha): numpy (blended
+    band by band) to the bit, torch to float rounding; unblended states are untouched."""
+    rng = np.random.default_rng(11)
+    n, h, w = 2, 2 * BAND + 3, 9
+    keys = ("depth", "position", "normal")
+    motion = ((rng.random((n, 2, h, w)) - 0.5) * 5).astype(np.float32)
+    cur, prev = _random_guides(rng, n, h, w, keys), _random_guides(rng, n, h, w, keys)
+    prev["position"] = cur["position"] + rng.normal(0, 0.1, cur["position"].shape).astype(np.float32)
+    states = [rng.random((n, 3, h, w), dtype=np.float32), rng.random((n, 1, h, w), dtype=np.float32)]
+    current = rng.random((n, 3, h, w), dtype=np.float32) * 4
+    (wa, wb), hist = reproject(states, motion, cur, prev, threads=threads, blend=[(current, 0.2), None])
+    (pa, pb), hp = reproject(states, motion, cur, prev)
+    assert 0.1 < hist.mean() < 0.95
+    np.testing.assert_array_equal(hist, hp)
+    np.testing.assert_array_equal(wb, pb)
+    np.testing.assert_array_equal(wa, accumulate(current, pa, hp, 0.2))
+    none = np.broadcast_to(hp == 0, wa.shape)
+    np.testing.assert_array_equal(wa[none], current[none])      # no history: the frame itself
+    t = lambda d: {k: torch.tensor(v) for k, v in d.items()}  # noqa: E731
+    (ta, tb), th = reproject([torch.tensor(s) for s in states], torch.tensor(motion), t(cur), t(prev),
+                             blend=[(torch.tensor(current), 0.2), None])
+    np.testing.assert_allclose(ta.numpy(), wa, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="blend: 1 entries for 2 states"):
+        reproject(states, motion, cur, prev, blend=[None])
 
 
 @pytest.mark.parametrize("shift", [0.0, 2.0, -1.0])

@@ -14,6 +14,18 @@ from training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, Re
 from training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
 
 WSKPN_SPECS = [n for n in list_specs() if load_spec(n).type == "wskpn"]
+_ACCUMULATE = """[[accumulate]]
+layer = "color"
+alpha = 0.2          # the current frame's weight
+"""
+
+
+def _in_graph_temporal(raw: str) -> str:
+    """A shipped spec (colour accumulated by the driver, [[accumulate]]) rewritten to accumulate
+    in the graph instead: a leading "temporal" stage and the [[state]] accum (the option NBG uses)."""
+    assert _ACCUMULATE in raw and 'stages = ["prediction", "reconstruction"]' in raw
+    return (raw.replace(_ACCUMULATE, '[[state]]\nname = "accum"\nchannels = 3\n')
+            .replace('stages = ["prediction", "reconstruction"]', 'stages = ["temporal", "prediction", "reconstruction"]'))
 
 
 def _tensors(model, n, h, w, seed=0, dtype=torch.float32):
@@ -88,7 +100,8 @@ def test_output_is_a_convex_combination_of_demodulated_input(name):
 
 
 def test_builder_validates_stages_state_and_layers():
-    raw = load_spec("wskpn-3").raw
+    raw = _in_graph_temporal(load_spec("wskpn-3").raw)
+    assert build_model(parse_spec(raw, "s.toml")).input_names[-2:] == ("prev_accum", "history")
     with pytest.raises(SpecError, match=r"stages must be \['temporal', 'prediction', 'reconstruction'\]"):
         build_model(parse_spec(raw.replace('"temporal", "prediction", "reconstruction"',
                                            '"prediction", "temporal", "reconstruction"'), "s.toml"))
@@ -275,10 +288,11 @@ def test_temporal_accumulate_formula():
     assert torch.equal(temporal_accumulate(color, huge, torch.zeros_like(h), a), color)
 
 
-@pytest.mark.parametrize("name", [n for n in WSKPN_SPECS if load_spec(n).state])
+@pytest.mark.parametrize("name", [n for n in WSKPN_SPECS if load_spec(n).accumulate])
 def test_history_zero_ignores_prev_state(name):
+    """The in-graph option (the shipped specs accumulate in the driver, tested in test_runtime)."""
     torch.manual_seed(9)
-    model = build_model(load_spec(name)).eval()
+    model = build_model(parse_spec(_in_graph_temporal(load_spec(name).raw), f"{name}.toml")).eval()
     t = _tensors(model, 1, 16, 20)
     i_prev, i_hist = model.input_names.index("prev_accum"), model.input_names.index("history")
     color = t[model.input_names.index("color")]

@@ -12,9 +12,13 @@ hyper-parameters.  Layout of ``models_spec/<name>.toml``::
     layers = ["color", "albedo", "normal", "depth"]   # runtime.frames.PIXEL_LAYERS names
     transfer = "gamma"                                # runtime.transfer name the model applies
 
-    [[state]]                        # temporal state tensors, zero or more
+    [[state]]                        # temporal state tensors the model carries, zero or more
     name = "accum"
     channels = 3
+
+    [[accumulate]]                   # inputs the driver accumulates over time, zero or more
+    layer = "color"                  # the model's input "color" receives the accumulation
+    alpha = 0.2                      # weight of the current frame
 
     [params]                         # type-specific; the builder validates them
     ...
@@ -244,6 +248,24 @@ class StateSpec:
 
 
 @dataclass(frozen=True)
+class AccumulateSpec:
+    """An input the driver (and the trainer) feeds as its temporal accumulation instead of the
+    frame's value: ``accum_t = layer_t + (warp(accum_{t-1}) - layer_t)·history·(1 - alpha)``
+    (:func:`runtime.temporal.accumulate`; WSKPN §4.1's pre-process), ``accum_0 = layer_0``.
+    The model itself is then stateless for this input."""
+
+    layer: str
+    alpha: float
+
+    def __post_init__(self):
+        names = [l.name for l in PIXEL_LAYERS]
+        if self.layer not in names:
+            raise ValueError(f"layer: unknown {self.layer!r}; known: {names}")
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha: the current frame's weight must be in (0, 1], got {self.alpha}")
+
+
+@dataclass(frozen=True)
 class TrainSpec:
     """Training defaults (the train command's flags override them).  Defaults suit 2 CPU cores.
 
@@ -298,6 +320,7 @@ class ModelSpec:
     stages: tuple[str, ...]
     description: str = ""
     state: tuple[StateSpec, ...] = ()
+    accumulate: tuple[AccumulateSpec, ...] = ()
     params: Mapping = field(default_factory=FrozenDict)
     paper: Mapping = field(default_factory=FrozenDict)
     train: TrainSpec = field(default_factory=TrainSpec)
@@ -319,6 +342,12 @@ class ModelSpec:
         names = [s.name for s in self.state]
         if len(set(names)) != len(names):
             raise ValueError(f"state: duplicate names in {names}")
+        acc = [a.layer for a in self.accumulate]
+        if len(set(acc)) != len(acc):
+            raise ValueError(f"accumulate: duplicate layers in {acc}")
+        for a in acc:
+            if a not in self.inputs.layers:
+                raise ValueError(f"accumulate: layer {a!r} is not among the model's inputs {list(self.inputs.layers)}")
         for k, v in self.paper.items():
             if k.endswith("_ms"):
                 if k not in PAPER_TOTAL_KEYS and k[:-3] not in self.stages:
@@ -357,12 +386,14 @@ class ModelSpec:
             "inputs": {"layers": list(self.inputs.layers), "transfer": self.inputs.transfer},
             "stages": list(self.stages),
             "state": [{"name": s.name, "channels": s.channels} for s in self.state],
+            "accumulate": [{"layer": a.layer, "alpha": a.alpha} for a in self.accumulate],
             "params": _plain(self.params), "paper": _plain(self.paper),
             "train": _plain({f.name: getattr(self.train, f.name) for f in fields(self.train)}),
         }
 
 
-_TOP_KEYS = ("name", "type", "description", "inputs", "stages", "state", "params", "paper", "train")
+_TOP_KEYS = ("name", "type", "description", "inputs", "stages", "state", "accumulate", "params", "paper",
+             "train")
 
 
 def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
@@ -381,6 +412,10 @@ def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
     state = data.get("state", [])
     if not isinstance(state, list):
         raise SpecError(f"{where}: state: expected an array of tables ([[state]]), got {type(state).__name__}")
+    accumulate = data.get("accumulate", [])
+    if not isinstance(accumulate, list):
+        raise SpecError(f"{where}: accumulate: expected an array of tables ([[accumulate]]), "
+                        f"got {type(accumulate).__name__}")
     params = data.get("params", {})
     if not isinstance(params, Mapping):
         raise SpecError(f"{where}: params: expected a table ([params])")
@@ -394,6 +429,8 @@ def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
         inputs=parse_table(InputsSpec, data["inputs"], f"{where}: [inputs]"),
         stages=_convert(data["stages"], tuple[str, ...], f"{where}: stages"),
         state=tuple(parse_table(StateSpec, s, f"{where}: [[state]] #{i}") for i, s in enumerate(state)),
+        accumulate=tuple(parse_table(AccumulateSpec, a, f"{where}: [[accumulate]] #{i}")
+                         for i, a in enumerate(accumulate)),
         params=_freeze(params), paper=_freeze(paper),
         train=parse_table(TrainSpec, data.get("train", {}), f"{where}: [train]"),
         raw=text,

@@ -3,7 +3,9 @@
 Training unrolls each item's window of T frames exactly as the runtime driver runs a
 sequence: frame 0 starts with empty state (history 0); frame t>0 receives the model's
 ``next_*`` outputs of frame t-1 warped by :func:`runtime.temporal.reproject` (the same
-function the driver uses) with the consistency-test history mask.  The loss (spec
+function the driver uses) with the consistency-test history mask, and each input of the
+spec's ``[[accumulate]]`` as its accumulation (:func:`runtime.temporal.accumulate` of the
+frame's value and the previous accumulation warped the same way).  The loss (spec
 ``train.loss``) is averaged over the T frames.
 
 Resume is exact: item order is a pure function of (seed, epoch, index), and the checkpoint
@@ -67,8 +69,11 @@ def model_inputs(model, frame: dict, states: dict | None, history, state_channel
     return args
 
 
-def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = True):
+def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = True, accumulate=()):
     """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts.
+
+    accumulate: (layer, alpha) pairs (the spec's ``[[accumulate]]``): that input is fed as its
+    temporal accumulation, as the driver feeds it.
 
     As the runtime driver does, each window's colour is scaled by its auto-exposure factor
     (:func:`runtime.inputs.exposure_scale` of its first frame, fixed for the window) and the
@@ -79,6 +84,7 @@ def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = Tr
     b, t_len = batch["color"].shape[:2]
     outputs = []
     states = None
+    accums: dict = {}
     prev_guides = None
     h, w = batch["color"].shape[-2:]
     history = torch.zeros(b, 1, h, w)
@@ -91,8 +97,13 @@ def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = Tr
                   "position": frame["position"], "normal": frame["normal_world"]}
         if t > 0:
             names = [n for n in model.output_names if n.startswith("next_")]
-            warped, history = reproject([outputs[-1][n] for n in names], frame["motion"], guides, prev_guides)
+            warped, history = reproject([outputs[-1][n] for n in names] + [accums[l] for l, _ in accumulate],
+                                        frame["motion"], guides, prev_guides,
+                                        blend=[None] * len(names) + [(frame[l], a) for l, a in accumulate])
             states = {n[5:]: s for n, s in zip(names, warped)}
+            for (l, _), acc in zip(accumulate, warped[len(names):]):
+                frame[l] = acc
+        accums = {l: frame[l] for l, _ in accumulate}
         out = dict(zip(model.output_names, model(*model_inputs(model, frame, states, history, state_channels))))
         if exposure is not None:
             out[OUTPUT] = out[OUTPUT] / exposure
@@ -101,7 +112,7 @@ def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = Tr
     return outputs
 
 
-def evaluate(model, dataset, state_channels: dict, batch_size: int = 4) -> dict:
+def evaluate(model, dataset, state_channels: dict, batch_size: int = 4, accumulate=()) -> dict:
     """Validation metrics on the last frame of every window (temporal state warmed up):
     SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
     import torch
@@ -113,7 +124,7 @@ def evaluate(model, dataset, state_channels: dict, batch_size: int = 4) -> dict:
     with torch.no_grad():
         for i in range(0, len(dataset), batch_size):
             batch = collate([dataset[j] for j in range(i, min(len(dataset), i + batch_size))])
-            outs = run_window(model, batch, state_channels)
+            outs = run_window(model, batch, state_channels, accumulate=accumulate)
             preds.append(outs[-1]["output"].numpy())
             refs.append(batch["reference"][:, -1].numpy())
             noisy.append(batch["color"][:, -1].numpy())
@@ -182,6 +193,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
     loss_fn = LOSSES[config["loss"]]
     state_channels = {s.name: s.channels for s in spec.state}
+    accumulate = tuple((a.layer, a.alpha) for a in spec.accumulate)
 
     torch.manual_seed(config["seed"])
     model = build_model(spec)
@@ -224,7 +236,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
             batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
-            outs = run_window(model, batch, state_channels)
+            outs = run_window(model, batch, state_channels, accumulate=accumulate)
             loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept)")
@@ -238,7 +250,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item())
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item(),
+                                 accumulate=accumulate)
                 save()
             if budget_s is not None and elapsed >= budget_s:
                 break
@@ -246,18 +259,21 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"]:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item())
+                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item(),
+                                 accumulate=accumulate)
             save()
     if bar is not None:
         bar.close()
     save()
-    last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, None, final=True)
+    last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, None, final=True,
+                     accumulate=accumulate)
     return last
 
 
-def _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss, final=False) -> dict:
+def _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss, final=False,
+              accumulate=()) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
-           "final": final, **evaluate(model, val_set, state_channels)}
+           "final": final, **evaluate(model, val_set, state_channels, accumulate=accumulate)}
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)

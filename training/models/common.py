@@ -4,8 +4,9 @@ Defined here once so that every model demodulates, accumulates and builds its ne
 the same way (STYLE: no magic constant in ten files):
 
 * :data:`ALBEDO_EPS` (from :mod:`runtime.inputs`) and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
-* :func:`temporal_accumulate` and :class:`TemporalStage`: the exponential moving average with
-  the driver's reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2);
+* :func:`temporal_accumulate` (:func:`runtime.temporal.accumulate`, defined there for the driver
+  too) and :class:`TemporalStage`: the exponential moving average with the driver's
+  reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2), for models that accumulate in-graph;
 * :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth];
 * :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`,
   :func:`check_accum_model_spec`: the model-interface bookkeeping of a model whose only state
@@ -18,6 +19,7 @@ from torch import nn
 
 from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
 from runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
+from runtime.temporal import accumulate as temporal_accumulate  # noqa: F401  (the driver blends too)
 from runtime.transfer import get as get_transfer
 
 #: State name of the accumulated-radiance temporal state (WSKPN §4.1, NBG §4.6).
@@ -32,20 +34,6 @@ def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
 def remodulate(irradiance: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     """Inverse of :func:`demodulate`: irradiance · (albedo + ALBEDO_EPS)."""
     return irradiance * (albedo + ALBEDO_EPS)
-
-
-def temporal_accumulate(color: torch.Tensor, prev: torch.Tensor, history: torch.Tensor,
-                        alpha: float) -> torch.Tensor:
-    """Exponential moving average with the reprojected history (WSKPN §4.1, NBG §4.6).
-
-    color, prev: (N, C, H, W) linear HDR; history: (N, 1, H, W) in [0, 1].
-    Returns history·(α·color + (1−α)·prev) + (1−history)·color, written with one broadcast
-    multiply.  Where history is 0, ``prev`` is ignored (it must be finite, e.g. 0).
-    """
-    # The broadcast (N, 1, H, W) factor goes second: onnxruntime's Mul is slower when its
-    # first input is the broadcast one (the stage at 720p, four paired runs: 6.1-8.2 ms that
-    # way, 5.2-6.3 ms this way; torch 3.4-5.4 ms).
-    return color + (prev - color) * (history * (1.0 - alpha))
 
 
 class TemporalStage(nn.Module):
