@@ -251,7 +251,7 @@ def _reproject_band_rows(b, guides, planes, mix, motion, cur, use_pos, use_nrm, 
         hist = (ws >= MIN_WEIGHT).astype(ftype)
         scale = hist / np.maximum(ws, MIN_WEIGHT)
         tk = tap[sl]
-        gk_keep = None
+        gain_for = None  # the 1 − α that gain currently holds
         for c, (p, mx) in enumerate(zip(planes, mix)):
             np.take(p, ik, mode="wrap", out=tk)
             tk *= wk
@@ -260,9 +260,9 @@ def _reproject_band_rows(b, guides, planes, mix, motion, cur, use_pos, use_nrm, 
             if mx is not None:
                 # accumulate(): current + (warped − current)·(history·(1 − α)), same op order
                 current, keep = mx
-                if gk_keep is not keep:
+                if gain_for is not keep:
                     np.multiply(hist, keep, out=gain[:r])
-                    gk_keep = keep
+                    gain_for = keep
                 cur_band = current[y:y1]
                 out -= cur_band
                 out *= gain[:r]
