@@ -217,7 +217,9 @@ class Denoiser:
             feeds = {}
             for l, a in feeds_by_layer.items():
                 if l in RADIANCE_LAYERS and self.exposure != 1.0:
-                    a = a * np.float32(self.exposure)
+                    # In place: the planes are the driver's own buffers (frame_planes copies
+                    # every layer), and a new 11 MB array costs its page faults (720p).
+                    a = np.multiply(a, np.float32(self.exposure), out=a)
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
@@ -230,7 +232,7 @@ class Denoiser:
             lo, hi = out.min(), out.max()                              # NaN/inf propagate
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 bad = ~np.isfinite(out)
-                out = np.where(bad, feeds_by_layer["color"][0] * np.float32(self.exposure), out)
+                out = np.where(bad, feeds_by_layer["color"][0], out)   # already exposure-scaled
                 self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
                           "values; replaced by the input and state reset", once_key=None)
                 named = None
