@@ -32,6 +32,7 @@ from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
 from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
 from runtime.temporal import reproject
+from runtime import workers
 from runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
 #: Guide layers stored for the consistency test, when the frame has them.
@@ -76,10 +77,14 @@ class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
     def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
-                 autoexposure: bool = True, driver_threads: int | None = None):
+                 autoexposure: bool = True, driver_threads: int | None = None, helper: bool = True):
         self.session = session
         #: Threads of the driver's own numpy stages (layer conversion, reprojection).
         self.driver_threads = default_threads() if driver_threads is None else max(1, int(driver_threads))
+        #: Allocator of the arrays the reprojection reads and writes: shared memory when two
+        #: driver threads may split it with the helper process (:mod:`runtime.workers`).
+        self._alloc = workers.shared_empty if helper and self.driver_threads == 2 and workers.SHARED_SUPPORTED \
+            else np.empty
         self.autoexposure = autoexposure
         #: The current history's auto-exposure factor (set at its first frame; 1 when off).
         self.exposure = 1.0
@@ -108,7 +113,7 @@ class Denoiser:
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
-             driver_threads: int | None = None) -> "Denoiser":
+             driver_threads: int | None = None, helper: bool = True) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -117,6 +122,9 @@ class Denoiser:
           driver_threads: threads of the driver's numpy stages (None: ``threads`` when given,
             at most :data:`runtime.workers.MAX_DEFAULT_THREADS`; else
             :func:`runtime.workers.default_threads`).  The output does not depend on it.
+          helper: with two driver threads, split the reprojection with a helper process on
+            shared memory (Linux; :func:`runtime.workers.run_split`) instead of two threads,
+            which wait for each other's GIL.  The output does not depend on it.
           profile: record per-node times so :meth:`stage_table` can split the graph by stage.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
@@ -154,7 +162,7 @@ class Denoiser:
         if driver_threads is None and threads:
             driver_threads = min(threads, MAX_DEFAULT_THREADS)
         return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
-                   driver_threads=driver_threads)
+                   driver_threads=driver_threads, helper=helper)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -203,7 +211,8 @@ class Denoiser:
             # (also after a frame that failed half-way).
             buffer_set = 1 - self._guides_set
             planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
-                                  buffers=self._plane_buffers[buffer_set], threads=self.driver_threads)
+                                  buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
+                                  alloc=self._alloc)
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
@@ -229,7 +238,12 @@ class Denoiser:
             named = dict(zip([o.name for o in self.session.get_outputs()], outs))
             out = named["output"][0]                                   # (3, H, W)
             inv = np.float32(1.0 / self.exposure)
-            lo, hi = out.min(), out.max()                              # NaN/inf propagate
+            scale = None if inv == 1 else inv
+            # Back to the caller's units (auto-exposure) in the same pass as the layout change
+            # and the extrema (NaN/inf propagate); redone in the rare case they say it must be.
+            ext: list = []
+            image = from_planes(out, scale, threads=self.driver_threads, extrema=ext)
+            lo, hi = ext
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 bad = ~np.isfinite(out)
                 out = np.where(bad, feeds_by_layer["color"][0], out)   # already exposure-scaled
@@ -245,8 +259,8 @@ class Denoiser:
                           "(counted in the report)", once_key="negative-output")
                 self.report.negative_output_values += int(neg.sum())
                 out = np.maximum(out, 0.0)
-            # Back to the caller's units (auto-exposure) in the same pass as the layout change.
-            image = from_planes(out.astype(np.float32, copy=False), scale=None if inv == 1 else inv)
+            if named is None or lo < 0:
+                image = from_planes(out.astype(np.float32, copy=False), scale, threads=self.driver_threads)
         with tm.stage(timing.STATE_UPDATE):
             if named is None:
                 self._state, self._guides = None, None
@@ -256,6 +270,11 @@ class Denoiser:
                     arr = named[st["output"]].astype(np.float32, copy=False)
                     if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
                         arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
+                    if self._alloc is not np.empty:
+                        # Into shared memory, so that the helper process can reproject it.
+                        shared = self._alloc(arr.shape, arr.dtype)
+                        np.copyto(shared, arr)
+                        arr = shared
                     self._state[st["name"]] = arr
                 self._guides, self._guides_set = guides, buffer_set
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
@@ -292,7 +311,9 @@ class Denoiser:
         keys = [st["name"] for st in self.contract.state] + [_accum_key(a) for a in acc]
         blend = [None] * len(self.contract.state) + [(feeds[a["input"]], float(a["alpha"])) for a in acc]
         warped, history = reproject([self._state[k] for k in keys], motion, guides, self._guides,
-                                    threads=self.driver_threads, blend=blend)
+                                    threads=self.driver_threads, blend=blend, alloc=self._alloc)
+        if workers.helper_problem:
+            self._say(f"{workers.helper_problem}", once_key="helper")
         for st, arr in zip(self.contract.state, warped):
             feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
         if self.contract.state:

@@ -363,20 +363,55 @@ def test_planes_round_trip_and_screen_normals_agree():
 
 
 def test_driver_threads_do_not_change_the_output(model_file):
-    """One driver thread or three (layer conversion and reprojection split across workers):
-    the same images, to the bit, over a sequence with history, a NaN and a negative value."""
+    """One driver thread, two threads, two with the helper process (rows split across
+    processes on shared memory, Linux), or three: the same images, to the bit, over a
+    sequence with history, a NaN and a negative value."""
+    from runtime import workers
+
     path, _, _ = model_file
     outs = {}
-    for threads in (1, 3):
-        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads)
+    for threads, helper in ((1, False), (2, False), (2, True), (3, False)):
+        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads, helper=helper)
         assert den.driver_threads == threads
         frames = [_frame(t, 40, 150) for t in range(3)]
         frames[1].color[5, 7, 1] = np.nan
         frames[2].color[9, 3, 0] = -4.0
-        outs[threads] = ([den(f) for f in frames], den.report.sanitized_frames)
-    assert outs[1][1] == outs[3][1] == 2
-    for a, b in zip(outs[1][0], outs[3][0]):
+        outs[threads, helper] = ([den(f) for f in frames], den.report.sanitized_frames)
+        if helper and workers.SHARED_SUPPORTED:
+            # Everything the reprojection reads is in shared memory, so the helper took half.
+            assert all(workers.is_shared(a) for a in den._state.values()) and workers.helper_usable()
+            assert not any("helper" in m for m in den.report.messages)
+    ref = outs[1, False]
+    assert ref[1] == 2
+    for key, (images, sanitized) in outs.items():
+        assert sanitized == 2, key
+        for a, b in zip(ref[0], images):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
+def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monkeypatch):
+    from runtime import workers
+
+    monkeypatch.setattr(workers, "helper_problem", None)
+    workers.stop_helper()
+    path, _, _ = model_file
+    frames = [_frame(t, 40, 64) for t in range(4)]
+    ref = Denoiser.load(path, log=lambda m: None, driver_threads=1)
+    want = [ref(f) for f in frames]
+    said = []
+    den = Denoiser.load(path, log=said.append, driver_threads=2, helper=True)
+    try:
+        got = [den(frames[0]), den(frames[1])]
+        assert workers._helper is not None          # frame 1 reprojected with the helper
+        workers._helper.proc.kill()
+        workers._helper.proc.wait()
+        got += [den(frames[2]), den(frames[3])]
+    finally:
+        workers.stop_helper()
+    for a, b in zip(want, got):
         np.testing.assert_array_equal(a, b)
+    assert len([m for m in said if "helper process failed" in m]) == 1, said
 
 
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
