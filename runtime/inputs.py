@@ -206,6 +206,10 @@ def _nan_last(v):
     return (np.isnan(v), v)
 
 
+#: :func:`from_planes` splits its rows between threads from this many values on.
+SPLIT_MIN_VALUES = 1 << 20
+
+
 def from_planes(chw: np.ndarray, scale=None, threads: int = 1, extrema: list | None = None) -> np.ndarray:
     """(C, H, W) -> new contiguous (H, W, C) array of the same dtype (the inverse of
     :func:`to_planes` for one image), times ``scale`` when given (a scalar of that dtype).
@@ -225,7 +229,9 @@ def from_planes(chw: np.ndarray, scale=None, threads: int = 1, extrema: list | N
                 np.multiply(chw[i, y0:y1].reshape(-1), scale, out=flat[:, i])
         return (chw[:, y0:y1].min(), chw[:, y0:y1].max()) if extrema is not None and y1 > y0 else None
 
-    n = max(1, min(threads, h))
+    # Split only frames big enough to pay for the hand-off (256x256: 0.4 ms on one thread,
+    # 0.9 on two; 1280x720: 7.3 -> 3.9 ms in the driver).
+    n = max(1, min(threads, h)) if chw.size >= SPLIT_MIN_VALUES else 1
     parts = [r for r in run_all(rows, [(h * k // n, h * (k + 1) // n) for k in range(n)], threads) if r]
     if extrema is not None:
         extrema[:] = [min((p[0] for p in parts), default=0.0, key=_nan_first),

@@ -362,6 +362,28 @@ def test_planes_round_trip_and_screen_normals_agree():
     assert screen_normal_planes(p, {}) is p
 
 
+@pytest.mark.parametrize("split_min", [1, 1 << 30])
+def test_from_planes_split_rows_give_the_same_image_and_extrema(monkeypatch, split_min):
+    """The postprocess's layout change on two threads (rows split) or one: same image, and the
+    extrema taken on the way see a NaN or a negative value in either half."""
+    import runtime.inputs as ri
+
+    monkeypatch.setattr(ri, "SPLIT_MIN_VALUES", split_min)
+    rng = np.random.default_rng(3)
+    chw = rng.random((3, 33, 17), dtype=np.float32)
+    want = (chw * np.float32(0.5)).transpose(1, 2, 0)
+    for threads in (1, 2):
+        ext = []
+        np.testing.assert_array_equal(ri.from_planes(chw, np.float32(0.5), threads=threads, extrema=ext), want)
+        assert ext == [chw.min(), chw.max()]
+    for y, value in ((2, -3.0), (30, np.nan)):
+        bad = chw.copy()
+        bad[1, y, 4] = value
+        ext = []
+        ri.from_planes(bad, threads=2, extrema=ext)
+        assert (np.isnan(ext[0]) and np.isnan(ext[1])) if np.isnan(value) else ext[0] == value
+
+
 def test_driver_threads_do_not_change_the_output(model_file):
     """One driver thread, two threads, two with the helper process (rows split across
     processes on shared memory, Linux), or three: the same images, to the bit, over a
