@@ -76,9 +76,10 @@ def run_all(fn, args_list, threads: int) -> list:
 
 #: Whether this platform can share numpy arrays with a helper process (Linux ``memfd``).
 SHARED_SUPPORTED = hasattr(os, "memfd_create") and sys.platform.startswith("linux")
-#: Freed shared segments kept for reuse (the driver frees and reallocates the same sizes every
-#: frame: a fresh 11 MB segment costs its page faults, 2-4 ms at 720p); older ones are closed.
-KEEP_FREE_SEGMENTS = 32
+#: Bytes of freed shared segments kept for reuse (the driver frees and reallocates the same
+#: sizes every frame, and a fresh 11 MB segment costs its page faults, 2-4 ms at 720p); the
+#: oldest beyond this are closed.
+KEEP_FREE_BYTES = 128 << 20
 #: Why the helper process is not used (None while it works or was never needed).
 helper_problem: str | None = None
 
@@ -106,6 +107,7 @@ class _NotShared(Exception):
 _seg_lock = threading.RLock()
 _segments: dict[int, _Segment] = {}      # live and free segments by id
 _free: dict[int, list[int]] = {}         # size -> free segment ids (most recently freed last)
+_freed_order: list[int] = []             # free segment ids, oldest first
 _next_seg = [0]
 
 
@@ -116,8 +118,11 @@ def _on_free(seg: int) -> None:
         if s is None:
             return
         _free.setdefault(s.size, []).append(seg)
-        free = [i for ids in _free.values() for i in ids]
-        for old in sorted(free)[:max(0, len(free) - KEEP_FREE_SEGMENTS)]:
+        _freed_order.append(seg)
+        kept = sum(_segments[i].size for ids in _free.values() for i in ids)
+        while kept > KEEP_FREE_BYTES:
+            old = next(i for i in _freed_order if i in _segments and i in _free.get(_segments[i].size, ()))
+            kept -= _segments[old].size
             _close_segment(old)
 
 
@@ -126,6 +131,8 @@ def _close_segment(seg: int) -> None:
     _free[s.size].remove(seg)
     if not _free[s.size]:
         del _free[s.size]
+    while seg in _freed_order:
+        _freed_order.remove(seg)
     try:
         s.mm.close()
     except BufferError:          # still exported somewhere: leave it to the garbage collector
@@ -151,6 +158,7 @@ def shared_empty(shape, dtype=np.float32) -> np.ndarray:
             seg = ids.pop()
             if not ids:
                 del _free[size]
+            _freed_order.remove(seg)
             mm = _segments[seg].mm
         else:
             fd = os.memfd_create("mcdenoise", os.MFD_CLOEXEC)
@@ -292,6 +300,32 @@ class _Helper:
 _helper: _Helper | None = None
 _helper_lock = threading.Lock()
 atexit.register(lambda: stop_helper())
+
+
+_inherited: list = []
+
+
+def _after_fork_in_child() -> None:
+    """A forked child (e.g. a data-loader worker) must neither talk to its parent's helper nor
+    hand out segments the parent also uses: it starts with none of either (arrays it inherited
+    stay valid, but are no longer "shared" for :func:`run_split`)."""
+    global _helper, _helper_lock, _seg_lock
+    if _helper is not None:
+        try:
+            _helper.conn.close()             # this process's copy of the socket only
+        except OSError:
+            pass
+        _inherited.append(_helper.proc)      # not ours to wait for
+    _helper = None
+    _helper_lock = threading.Lock()
+    _seg_lock = threading.RLock()
+    _segments.clear()
+    _free.clear()
+    _freed_order.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _get_helper() -> _Helper | None:

@@ -104,3 +104,30 @@ def test_reprojection_split_with_the_helper_is_the_one_thread_result_to_the_bit(
     assert 0.1 < h1.mean() < 0.95
     for x, y in ((a1, a2), (b1, b2), (h1, h2)):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_forked_child_neither_uses_the_parents_helper_nor_its_segments(fresh_helper):
+    out = workers.shared_empty((4, 2), np.float64)
+    workers.run_split(_stamp, [(out, slice(0, 2), 1.0), (out, slice(2, 4), 2.0)], 2)
+    assert workers._helper is not None
+    pid = os.fork()
+    if pid == 0:                                       # the child: report through the exit code
+        ok = (workers._helper is None and not workers.is_shared(out) and not workers._segments
+              and workers.is_shared(workers.shared_empty((4, 2))))
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+    # The parent's helper is unaffected.
+    out[:] = 0
+    workers.run_split(_stamp, [(out, slice(0, 2), 1.0), (out, slice(2, 4), 2.0)], 2)
+    assert (out[2:, 1] == workers._helper.proc.pid).all()
+
+
+def test_freed_segments_kept_for_reuse_are_bounded(monkeypatch):
+    monkeypatch.setattr(workers, "KEEP_FREE_BYTES", 3 * 4096)
+    arrays = [workers.shared_empty((1024,), np.float32) for _ in range(6)]   # one page each
+    ids = set(workers._segments)
+    del arrays
+    free = [i for v in workers._free.values() for i in v]
+    assert sum(workers._segments[i].size for i in free) <= 3 * 4096
+    assert len(ids) - len(set(workers._segments)) >= 3
