@@ -246,14 +246,16 @@ def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
     here) lets a caller reuse last time's arrays, which at 720p saves the page faults of fresh
     11 MB blocks (~2 ms a layer).  ``threads`` > 1 converts layers on worker threads
     (:mod:`runtime.workers`); sanitising and its report stay on the calling thread.  New
-    arrays come from ``alloc(shape, dtype)`` (default ``np.empty``).
+    arrays come from ``alloc(shape, dtype)`` (default ``np.empty``), or from ``alloc[name]``
+    when ``alloc`` is a dict (``np.empty`` for a name it lacks).
     Raises FrameError naming the frame and the missing layer."""
     report = SanitizeReport() if report is None else report
     layers = [(name, frame.layer(name)) for name in names]   # FrameError before any work
 
     def convert(name, arr):
         ext: list = []
-        return to_planes(arr, None if buffers is None else buffers.get(name), ext, alloc), ext
+        make = alloc.get(name) if isinstance(alloc, dict) else alloc
+        return to_planes(arr, None if buffers is None else buffers.get(name), ext, make), ext
 
     out = {}
     for (name, _), (arr, ext) in zip(layers, run_all(convert, layers, threads)):
