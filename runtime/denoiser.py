@@ -215,9 +215,13 @@ class Denoiser:
             # Two buffer sets: this frame fills the one the kept previous guides are not in
             # (also after a frame that failed half-way).
             buffer_set = 1 - self._guides_set
+            # A history's exposure is fixed at its first frame; after that the colour is
+            # scaled while it is converted (one pass fewer over it).
+            exposed = {l: np.float32(self.exposure) for l in RADIANCE_LAYERS} \
+                if self._state is not None and self.exposure != 1.0 else None
             planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
                                   buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
-                                  alloc=self._plane_alloc)
+                                  alloc=self._plane_alloc, scale=exposed)
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
@@ -230,7 +234,7 @@ class Denoiser:
                 self.exposure = float(exposure_scale(feeds_by_layer["color"]).ravel()[0]) if self.autoexposure else 1.0
             feeds = {}
             for l, a in feeds_by_layer.items():
-                if l in RADIANCE_LAYERS and self.exposure != 1.0:
+                if l in RADIANCE_LAYERS and self.exposure != 1.0 and exposed is None:
                     # In place: the planes are the driver's own buffers (frame_planes copies
                     # every layer), and a new 11 MB array costs its page faults (720p).
                     a = np.multiply(a, np.float32(self.exposure), out=a)

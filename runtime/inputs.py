@@ -103,6 +103,11 @@ def exposure_scale(color):
 NONFINITE_FILL = {"albedo": 1.0}
 
 
+def _clean(lo, hi, radiance: bool, top=MAX_RADIANCE) -> bool:
+    """Whether a layer with these extrema needs no sanitising (radiance: none above ``top``)."""
+    return bool(np.isfinite(lo) and np.isfinite(hi) and (not radiance or (lo >= 0 and hi <= top)))
+
+
 def _sanitize_inplace(out: np.ndarray, radiance: bool, name: str, report: SanitizeReport,
                       lo=None, hi=None) -> np.ndarray:
     """:func:`sanitize_array` on a float32 array the caller owns (modified in place); ``lo``,
@@ -111,7 +116,7 @@ def _sanitize_inplace(out: np.ndarray, radiance: bool, name: str, report: Saniti
     # the common case, without the mask passes the repair below needs.
     if lo is None or hi is None:
         lo, hi = out.min(initial=0.0), out.max(initial=0.0)
-    if np.isfinite(lo) and np.isfinite(hi) and (not radiance or (lo >= 0 and hi <= MAX_RADIANCE)):
+    if _clean(lo, hi, radiance):
         return out
     bad = ~np.isfinite(out)
     if bad.any():
@@ -178,18 +183,22 @@ _TRANSPOSE_ROWS = 64
 
 
 def to_planes(arr: np.ndarray, out: np.ndarray | None = None, extrema: list | None = None,
-              alloc=None) -> np.ndarray:
+              alloc=None, scale=None) -> np.ndarray:
     """(H, W, C) image layer -> contiguous float32 (1, C, H, W) array: ``out`` when given (of
-    that shape and dtype), else a new one from ``alloc(shape, dtype)`` (default ``np.empty``).
-    ``extrema``: a list that receives [min, max] of the values (NaN when there is a NaN),
-    taken block by block while the block is in cache."""
+    that shape and dtype), else a new one from ``alloc(shape, dtype)`` (default ``np.empty``),
+    times ``scale`` (a float32 scalar) when given.  ``extrema``: a list that receives
+    [min, max] of the values written (NaN when there is a NaN), taken block by block while the
+    block is in cache."""
     h, w, c = arr.shape
     if out is None or out.shape != (1, c, h, w) or out.dtype != np.float32:
         out = (alloc or np.empty)((1, c, h, w), np.float32)
     los, his = [], []
     for y in range(0, h, _TRANSPOSE_ROWS):
         block = out[0, :, y:y + _TRANSPOSE_ROWS]
-        block[...] = arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1)
+        if scale is None:
+            block[...] = arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1)
+        else:
+            np.multiply(arr[y:y + _TRANSPOSE_ROWS].transpose(2, 0, 1), scale, out=block)
         if extrema is not None:
             los.append(block.min())
             his.append(block.max())
@@ -240,14 +249,17 @@ def from_planes(chw: np.ndarray, scale=None, threads: int = 1, extrema: list | N
 
 
 def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
-                 buffers: dict | None = None, threads: int = 1, alloc=None) -> dict[str, np.ndarray]:
+                 buffers: dict | None = None, threads: int = 1, alloc=None,
+                 scale: dict | None = None) -> dict[str, np.ndarray]:
     """Layers ``names`` of ``frame`` as a dict name -> sanitised (1, C, H, W) float32 arrays,
     in the frame's own spaces (normals in world space).  ``buffers`` (name -> array, updated
     here) lets a caller reuse last time's arrays, which at 720p saves the page faults of fresh
     11 MB blocks (~2 ms a layer).  ``threads`` > 1 converts layers on worker threads
     (:mod:`runtime.workers`); sanitising and its report stay on the calling thread.  New
     arrays come from ``alloc(shape, dtype)`` (default ``np.empty``), or from ``alloc[name]``
-    when ``alloc`` is a dict (``np.empty`` for a name it lacks).
+    when ``alloc`` is a dict (``np.empty`` for a name it lacks).  ``scale``: name -> positive
+    float32 factor a layer is multiplied by on the way (the driver's auto-exposure: one pass
+    fewer over the colour); the result is that of sanitising first and scaling after.
     Raises FrameError naming the frame and the missing layer."""
     report = SanitizeReport() if report is None else report
     layers = [(name, frame.layer(name)) for name in names]   # FrameError before any work
@@ -255,13 +267,25 @@ def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
     def convert(name, arr):
         ext: list = []
         make = alloc.get(name) if isinstance(alloc, dict) else alloc
-        return to_planes(arr, None if buffers is None else buffers.get(name), ext, make), ext
+        return to_planes(arr, None if buffers is None else buffers.get(name), ext, make, scales.get(name)), ext
+
+    scales = scale or {}
 
     out = {}
-    for (name, _), (arr, ext) in zip(layers, run_all(convert, layers, threads)):
+    for (name, src), (arr, ext) in zip(layers, run_all(convert, layers, threads)):
         if buffers is not None:
             buffers[name] = arr
-        out[name] = _sanitize_inplace(arr, name in RADIANCE_LAYERS, name, report, *ext)
+        radiance, s = name in RADIANCE_LAYERS, scales.get(name)
+        # Scaled values: clean only clearly below the scaled bound (rounding of x·s must not
+        # let a value just above MAX_RADIANCE through unclamped).
+        if s is not None and not _clean(*ext, radiance, MAX_RADIANCE * float(s) * (1 - 1e-6)):
+            # Something to sanitise (rare): in the layer's own units, as without a scale.
+            ext = []
+            to_planes(src, arr, ext)
+            arr = _sanitize_inplace(arr, radiance, name, report, *ext)
+            out[name] = np.multiply(arr, s, out=arr)
+            continue
+        out[name] = _sanitize_inplace(arr, radiance, name, report, *ext)
     return out
 
 

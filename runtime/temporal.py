@@ -34,13 +34,16 @@ MIN_WEIGHT = 1e-3
 
 #: numpy processes this many output rows at a time (all four taps of a band stacked), so a
 #: band's temporaries stay near the core.  1280x720, one thread: 8 rows 61 ms, 16 rows 61,
-#: 24 rows 62.
-BAND_ROWS = 16
+#: 24 rows 62; split with the helper process, frames interleaved with Open Image Denoise as
+#: in ``mcdenoise bench`` (two runs): 8 rows 40.3 / 39.4 ms, 12 rows 39.9 / 39.9, 16 rows
+#: 43.3 / 42.3, 24 rows 44.6 / 44.5.
+BAND_ROWS = 12
 #: Band height (about) when worker threads share the frame: each numpy call must do enough
 #: work to pay for taking the GIL back.  1280x720, 2 threads each taking 360 rows, this
 #: machine's 2 cores: 16-row bands 49 ms, 30 rows 42, 45 rows 42, 60 rows 44, 90 rows 52.
 #: Split with the helper process (:func:`runtime.workers.run_split`, no GIL to share) the
-#: one-thread band height is best: 8 rows 38 ms, 16 rows 36, 30 rows 40, 45 rows 46.
+#: one-thread height :data:`BAND_ROWS` is best (isolated: 8 rows 38 ms, 16 rows 36, 30 rows
+#: 40, 45 rows 46).
 THREADED_BAND_ROWS = 45
 
 

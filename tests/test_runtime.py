@@ -344,6 +344,29 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     np.testing.assert_array_equal(planes["position"][0], want)
 
 
+@pytest.mark.parametrize("bad", [None, "nan", "negative", "huge", "just-above"])
+def test_scaling_while_converting_equals_sanitising_then_scaling(bad):
+    """frame_planes(scale=...) (the driver's exposure, applied during the layout change) gives
+    the values and report of sanitising the raw layer and multiplying after, to the bit."""
+    from runtime.inputs import MAX_RADIANCE, SanitizeReport, frame_planes
+
+    rng = np.random.default_rng(4)
+    color = rng.random((37, 21, 3), dtype=np.float32) * 5
+    value = {"nan": np.nan, "negative": -2.0, "huge": 1e30,
+             "just-above": np.nextafter(np.float32(MAX_RADIANCE), np.float32(np.inf))}.get(bad)
+    if value is not None:
+        color[30, 4, 2] = value
+    frame = Frame(color=color, albedo=color.copy())
+    for s in (np.float32(0.37), np.float32(1e4), np.float32(3.3)):
+        rep_a, rep_b = SanitizeReport(), SanitizeReport()
+        a = frame_planes(frame, ["color", "albedo"], rep_a, scale={"color": s})
+        b = frame_planes(frame, ["color", "albedo"], rep_b)
+        np.testing.assert_array_equal(a["color"], b["color"] * s)
+        np.testing.assert_array_equal(a["albedo"], b["albedo"])
+        assert (rep_a.nonfinite, rep_a.negative, rep_a.clamped) == (rep_b.nonfinite, rep_b.negative, rep_b.clamped)
+        assert (rep_a.total > 0) == (bad is not None)
+
+
 def test_planes_round_trip_and_screen_normals_agree():
     from runtime.inputs import from_planes, screen_normal_planes, screen_normals, to_planes
 
