@@ -45,6 +45,10 @@ BAND_ROWS = 12
 #: one-thread height :data:`BAND_ROWS` is best (isolated: 8 rows 38 ms, 16 rows 36, 30 rows
 #: 40, 45 rows 46).
 THREADED_BAND_ROWS = 45
+#: Frames smaller than this (pixels per image) stay on threads: the helper process's hand-off
+#: costs more than it saves there (wskpn-3, two threads, interleaved: 160x120 3.5 ms on
+#: threads, 4.3 with the helper; 256x256 9.2 and 5.8).
+HELPER_MIN_PIXELS = 1 << 15
 
 
 def accumulate(current, prev, history, alpha: float):
@@ -149,7 +153,7 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     alloc = alloc or np.empty
     acc = alloc((n, n_state, h, w), dtype)
     history = alloc((n, 1, h, w), motion.dtype)
-    split = threads == 2 and workers.helper_usable() and workers.shareable(
+    split = threads == 2 and h * w >= HELPER_MIN_PIXELS and workers.helper_usable() and workers.shareable(
         [states, motion, cur, prev, acc, history] + [bl[0] for bl in blend or () if bl is not None])
     band = THREADED_BAND_ROWS if threads > 1 and not split else BAND_ROWS
     # Each thread takes an equal share of the rows, cut into equal bands of about ``band``

@@ -407,11 +407,14 @@ def test_from_planes_split_rows_give_the_same_image_and_extrema(monkeypatch, spl
         assert (np.isnan(ext[0]) and np.isnan(ext[1])) if np.isnan(value) else ext[0] == value
 
 
-def test_driver_threads_do_not_change_the_output(model_file):
+def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
     """One driver thread, two threads, two with the helper process (rows split across
     processes on shared memory, Linux), or three: the same images, to the bit, over a
     sequence with history, a NaN and a negative value."""
+    import runtime.temporal
     from runtime import workers
+
+    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
 
     path, _, _ = model_file
     outs = {}
@@ -436,8 +439,10 @@ def test_driver_threads_do_not_change_the_output(model_file):
 
 @pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
 def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monkeypatch):
+    import runtime.temporal
     from runtime import workers
 
+    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
     monkeypatch.setattr(workers, "helper_problem", None)
     workers.stop_helper()
     path, _, _ = model_file

@@ -25,7 +25,11 @@ def _fail(out, rows, value):
 
 @pytest.fixture
 def fresh_helper(monkeypatch):
-    """A helper process of this test's own, and the module's failure note restored after."""
+    """A helper process of this test's own, and the module's failure note restored after;
+    the reprojection hands small frames to it too."""
+    import runtime.temporal
+
+    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
     monkeypatch.setattr(workers, "helper_problem", None)
     workers.stop_helper()
     yield
