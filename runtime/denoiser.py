@@ -321,8 +321,8 @@ class Denoiser:
         blend = [None] * len(self.contract.state) + [(feeds[a["input"]], float(a["alpha"])) for a in acc]
         warped, history = reproject([self._state[k] for k in keys], motion, guides, self._guides,
                                     threads=self.driver_threads, blend=blend, alloc=self._alloc)
-        if workers.helper_problem:
-            self._say(f"{workers.helper_problem}", once_key="helper")
+        if workers.helper_problem and self._alloc is workers.shared_empty:
+            self._say(workers.helper_problem, once_key="helper")
         for st, arr in zip(self.contract.state, warped):
             feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
         if self.contract.state:
