@@ -464,6 +464,30 @@ def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monk
     assert len([m for m in said if "helper process failed" in m]) == 1, said
 
 
+@pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
+def test_helper_process_across_resolution_changes_and_closed_segments(model_file, monkeypatch):
+    """With the helper, a sequence whose resolution changes twice (new shared buffers, the old
+    ones closed at once and unmapped in the helper) gives what one thread gives, to the bit."""
+    import runtime.temporal
+    from runtime import workers
+
+    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
+    monkeypatch.setattr(workers, "KEEP_FREE_BYTES", 0)
+    monkeypatch.setattr(workers, "helper_problem", None)
+    path, _, _ = model_file
+    frames = [_frame(t, 40, 64) for t in range(3)] + [_frame(t, 32, 48) for t in range(3, 6)] \
+        + [_frame(t, 40, 64) for t in range(6, 8)]
+    ref = Denoiser.load(path, log=lambda m: None, driver_threads=1)
+    den = Denoiser.load(path, log=lambda m: None, driver_threads=2, helper=True)
+    try:
+        for f in frames:
+            np.testing.assert_array_equal(den(f), ref(f))
+        assert workers._helper is not None and workers.helper_problem is None
+        assert len(den.report.resets) == len(ref.report.resets) == 2
+    finally:
+        workers.stop_helper()
+
+
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
     """The driver reuses two sets of input planes; the previous frame's guides must reach the
     reprojection intact, also when the frame before failed half-way."""
