@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime import timing, transfer
+from runtime import bands as bands_mod, graphcut, timing, transfer
 from runtime.contract import parse_contract
 from runtime.frames import Frame, FrameError
 from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
@@ -77,8 +77,14 @@ class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
     def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
-                 autoexposure: bool = True, driver_threads: int | None = None, helper: bool = True):
+                 autoexposure: bool = True, driver_threads: int | None = None, helper: bool = True,
+                 bands: "bands_mod.BandedStage | None" = None):
         self.session = session
+        #: The graph cut before its last stage, run in bands of rows (:mod:`runtime.bands`),
+        #: or None: every frame runs ``session``.
+        self.bands = bands
+        #: Indices into ``timings`` of the frames that ran ``session`` (the profiled ones).
+        self._whole_frames: list[int] = []
         #: Threads of the driver's own numpy stages (layer conversion, reprojection).
         self.driver_threads = default_threads() if driver_threads is None else max(1, int(driver_threads))
         #: Allocator of the arrays the reprojection reads and writes: shared memory when two
@@ -118,7 +124,7 @@ class Denoiser:
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
-             driver_threads: int | None = None, helper: bool = True) -> "Denoiser":
+             driver_threads: int | None = None, helper: bool = True, banded: bool = True) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -130,7 +136,12 @@ class Denoiser:
           helper: with two driver threads, split the reprojection with a helper process on
             shared memory (Linux; :func:`runtime.workers.run_split`) instead of two threads,
             which wait for each other's GIL.  The output does not depend on it.
-          profile: record per-node times so :meth:`stage_table` can split the graph by stage.
+          banded: on the CPU provider, run a last stage that the model declares row-local
+            (a ``halo`` in its contract, e.g. WSKPN's reconstruction) in bands of rows on
+            driver threads (:mod:`runtime.bands`); frames then time their graph stages by wall
+            clock.  The output does not depend on it.
+          profile: record per-node times so :meth:`stage_table` can split the graph by stage
+            (frames that run whole; banded frames time their stages by wall clock).
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
@@ -166,8 +177,24 @@ class Denoiser:
             raise ModelFileError(f"{path}: {e}") from None
         if driver_threads is None and threads:
             driver_threads = min(threads, MAX_DEFAULT_THREADS)
+        banded_stage = None
+        if banded and sess.get_providers() == ["CPUExecutionProvider"]:
+            def make_session(model: bytes, intra: int | None):
+                opts = ort.SessionOptions()
+                opts.log_severity_level = 3
+                opts.add_session_config_entry("session.force_spinning_stop", "1")
+                if intra or threads:
+                    opts.intra_op_num_threads = intra or threads
+                return ort.InferenceSession(model, opts, providers=["CPUExecutionProvider"])
+            try:
+                with open(path, "rb") as fh:
+                    banded_stage = bands_mod.BandedStage.build(
+                        fh.read(), contract, make_session,
+                        default_threads() if driver_threads is None else driver_threads)
+            except (graphcut.GraphCutError, OSError):
+                banded_stage = None       # not cuttable there: every frame runs the whole graph
         return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
-                   driver_threads=driver_threads, helper=helper)
+                   driver_threads=driver_threads, helper=helper, bands=banded_stage)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -241,10 +268,13 @@ class Denoiser:
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
+        graph_stages = None
         with tm.stage(timing.GRAPH):
-            outs = self.session.run(None, feeds)
+            if self.bands is not None and self.bands.applies(h, w):
+                named, graph_stages = self.bands.run(feeds)
+            else:
+                named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
         with tm.stage(timing.POSTPROCESS):
-            named = dict(zip([o.name for o in self.session.get_outputs()], outs))
             out = named["output"][0]                                   # (3, H, W)
             inv = np.float32(1.0 / self.exposure)
             scale = None if inv == 1 else inv
@@ -287,6 +317,10 @@ class Denoiser:
                     self._state[st["name"]] = arr
                 self._guides, self._guides_set = guides, buffer_set
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
+        if graph_stages is None:
+            self._whole_frames.append(len(self.timings))
+        else:
+            tm.ms.update(graph_stages)
         self.timings.append(tm.ms)
         self.report.frames += 1
         return image
@@ -342,8 +376,8 @@ class Denoiser:
             if self._profile_rows is None:
                 path = self.session.end_profiling()
                 self._profile_rows = timing.graph_stage_times(path, self.graph_stages)
-            for r, g in zip(rows, self._profile_rows):
-                r.update(g)
+            for i, g in zip(self._whole_frames, self._profile_rows):
+                rows[i].update(g)
         return rows
 
     def stage_table(self, skip: int = 1, device: str | None = None) -> str:

@@ -203,6 +203,22 @@ def test_stage_table_charges_each_conv_to_its_own_stage(path):
     assert want and got == want
 
 
+@pytest.mark.parametrize("path", shipped_models(), ids=os.path.basename)
+def test_shipped_models_declare_what_runs_in_bands(path):
+    """The shipped wskpn files declare their reconstruction's halo (largest kernel // 2) and
+    load with it banded on the CPU; the nbg files declare none and run whole."""
+    import tomllib
+
+    den = Denoiser.load(path, log=lambda m: None)
+    spec = tomllib.loads(den.contract.spec_toml)
+    halos = {s["name"]: s.get("halo") for s in den.contract.stages}
+    if den.contract.model_type == "wskpn":
+        assert halos == {"prediction": None, "reconstruction": max(spec["params"]["kernel_sizes"]) // 2}
+        assert den.bands is not None and den.bands.stage == "reconstruction"
+    else:
+        assert set(halos.values()) == {None} and den.bands is None
+
+
 def test_denoise_command_on_a_sequence(model_file, tmp_path):
     from runtime.cli import main
 
@@ -541,3 +557,62 @@ def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file):
     assert any("non-finite values; replaced by the input" in m for m in msgs)
     den.session.run = real
     assert np.isfinite(den(frames[2])).all() and den._state is not None
+
+
+def test_last_stage_in_bands_gives_the_whole_graph_to_the_bit(model_file, monkeypatch):
+    """A model whose last stage declares a halo (wskpn: the reconstruction) runs it in bands
+    of rows on one-thread sessions: the same images to the bit as the whole graph, on one or
+    two driver threads, over a sequence with history and a resolution change; its frames
+    time both graph stages by wall clock, frames too small for bands run whole."""
+    from runtime import bands
+
+    path, spec, _ = model_file
+    monkeypatch.setattr(bands, "MIN_PIXELS", 40 * 100)
+    monkeypatch.setattr(bands, "BAND_ROWS", 7)
+    frames = [_frame(t, 40, 150) for t in range(3)] + [_frame(t, 40, 60) for t in range(3, 5)] \
+        + [_frame(5, 40, 99)]
+    whole = Denoiser.load(path, log=lambda m: None, banded=False, profile=True)
+    want = [whole(f) for f in frames]
+    assert whole.bands is None
+    for threads in (1, 2):
+        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads, profile=True)
+        if spec.type != "wskpn":
+            assert den.bands is None           # nbg's stages read the whole frame
+            return
+        assert den.bands is not None and den.bands.halo == max(spec.params["kernel_sizes"]) // 2
+        for f, ref in zip(frames, want):
+            np.testing.assert_array_equal(den(f), ref)
+        rows = den.stage_times()
+        assert len(rows) == len(frames)
+        for f, r in zip(frames, rows):
+            # 40x60 is below MIN_PIXELS: whole graph, stage rows from the profiler; the others
+            # ran in bands, stage rows by wall clock within the graph's wall time.
+            assert all(r[s] > 0 for s in spec.stages), r
+            if f.color.shape[0] != 60:
+                assert r["prediction"] + r["reconstruction"] <= r["graph (wall)"] + 1e-6
+
+
+def test_banded_stage_refuses_a_halo_too_small(model_file):
+    """The export checks a declared halo by running the stage in bands: one row short of what
+    the box filters read gives a different image, which the check reports."""
+    from dataclasses import replace
+
+    from export.onnx_export import ExportError, check_bands
+    from runtime.contract import parse_contract
+
+    import onnxruntime as ort
+
+    path, spec, _ = model_file
+    data = path.read_bytes()
+    sess = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
+    contract = parse_contract(sess.get_modelmeta().custom_metadata_map)
+    if spec.type != "wskpn":
+        assert not any("halo" in s for s in contract.stages)   # nbg's stages read the whole frame
+        return
+    feeds = {i.name: np.random.default_rng(1).random((1, i.shape[1], 30, 26), dtype=np.float32)
+             for i in sess.get_inputs()}
+    whole = dict(zip([o.name for o in sess.get_outputs()], sess.run(None, feeds)))
+    check_bands(data, contract, feeds, whole, spec.name, rows=4)
+    short = replace(contract, stages=(contract.stages[0], {**contract.stages[1], "halo": contract.stages[1]["halo"] - 1}))
+    with pytest.raises(ExportError, match="differs from the whole graph"):
+        check_bands(data, short, feeds, whole, spec.name, rows=4)
