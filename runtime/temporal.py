@@ -49,13 +49,6 @@ THREADED_BAND_ROWS = 45
 #: costs more than it saves there (wskpn-3, two threads, interleaved: 160x120 3.5 ms on
 #: threads, 4.3 with the helper; 256x256 9.2 and 5.8).
 HELPER_MIN_PIXELS = 1 << 15
-#: This process's share of the rows when split with the helper, moved after each frame
-#: halfway toward the share that would have made both finish together (from
-#: :data:`runtime.workers.last_split_seconds`), within :data:`LOCAL_SHARE_RANGE`.  The helper
-#: was the slower side of equal halves (720p, interleaved with Open Image Denoise: this
-#: process 38.4 ms, then 3.5 ms waiting for the helper).
-local_share = 0.5
-LOCAL_SHARE_RANGE = (0.35, 0.65)
 
 
 def accumulate(current, prev, history, alpha: float):
@@ -178,27 +171,9 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
         mix = [None if bl is None else (bl[0][b, c], _keep(bl[1], acc))
                for st, bl in zip(states, blend or [None] * len(states)) for c in range(st.shape[1])]
         args = (b, guides, planes, mix, motion, cur, use_pos, use_nrm, acc, history)
-        if split:
-            cut = min(h - 1, max(1, round(h * local_share)))
-            workers.last_split_seconds.clear()
-            workers.run_split(_reproject_band_rows, [(*args, 0, cut, band), (*args, cut, h, band)], threads)
-            _balance(cut, h, workers.last_split_seconds)
-        else:
-            jobs = [(*args, y, min(h, y + share), band) for y in range(0, h, share)]
-            workers.run_all(_reproject_band_rows, jobs, threads)
+        jobs = [(*args, y, min(h, y + share), band) for y in range(0, h, share)]
+        (workers.run_split if split else workers.run_all)(_reproject_band_rows, jobs, threads)
     return _split_states(acc, states), history
-
-
-def _balance(cut: int, h: int, seconds: list) -> None:
-    """Move :data:`local_share` toward equal finishing times after a split at row ``cut`` of
-    ``h`` whose [local, helper] seconds are ``seconds`` (empty: the helper did not answer)."""
-    global local_share
-    if len(seconds) != 2 or min(seconds) <= 0:
-        return
-    local_rate, helper_rate = cut / seconds[0], (h - cut) / seconds[1]
-    target = local_rate / (local_rate + helper_rate)
-    lo, hi = LOCAL_SHARE_RANGE
-    local_share = min(hi, max(lo, 0.5 * (local_share + target)))
 
 
 #: Bilinear taps (dx, dy) in the order every path sums them.

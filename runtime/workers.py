@@ -27,7 +27,6 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -351,11 +350,6 @@ def stop_helper() -> None:
             h.close()
 
 
-#: [this process's, the helper's] seconds from the hand-off in the last :func:`run_split` the
-#: helper answered (callers balance the next split with it); empty before the first.
-last_split_seconds: list = []
-
-
 def run_split(fn, args_list, threads: int) -> list:
     """:func:`run_all` for jobs that write disjoint parts of shared arrays: with two jobs and
     ``threads`` >= 2, the second runs in the helper process (when every array it touches is
@@ -370,7 +364,6 @@ def run_split(fn, args_list, threads: int) -> list:
         helper = _get_helper()
         if helper is None:
             return run_all(fn, args_list, threads)
-        t0 = time.perf_counter()
         try:
             helper.submit(fn, args_list[1])
         except _NotShared:
@@ -380,20 +373,14 @@ def run_split(fn, args_list, threads: int) -> list:
             _drop_helper()
             return run_all(fn, args_list, threads)
         first = fn(*args_list[0])
-        t1 = time.perf_counter()
         try:
-            status, second, helper_s = helper.conn.recv()
-            t2 = time.perf_counter()
+            status, second = helper.conn.recv()
         except (OSError, EOFError) as e:
             helper_problem = f"helper process failed ({e}); numpy stages run on threads"
             _drop_helper()
             status = "lost"
         if status != "ok":
             second = fn(*args_list[1])
-        else:
-            # Both from the hand-off: when this process waited, the helper's time includes
-            # getting the call; when it did not, the helper's own count is all there is.
-            last_split_seconds[:] = [t1 - t0, t2 - t0 if t2 - t1 > 1e-4 else helper_s]
         return [first, second]
     finally:
         _helper_lock.release()
@@ -444,11 +431,10 @@ def _helper_main(fd: int) -> None:
                 fn = importlib.import_module(module)
                 for part in name.split("."):
                     fn = getattr(fn, part)
-                t0 = time.perf_counter()
                 value = fn(*_decode(args, maps))
-                conn.send(("ok", value, time.perf_counter() - t0))
+                conn.send(("ok", value))
             except Exception as e:  # noqa: BLE001 - reported to the caller, who redoes the work
-                conn.send(("error", f"{type(e).__name__}: {e}", 0.0))
+                conn.send(("error", f"{type(e).__name__}: {e}"))
 
 
 def _decode(obj, maps):

@@ -454,36 +454,6 @@ def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
 
 
 @pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
-def test_helper_share_moves_toward_equal_times_and_never_changes_the_output(model_file, monkeypatch):
-    """The rows this process keeps move halfway toward the split that would have finished both
-    sides together, within LOCAL_SHARE_RANGE; any split gives one thread's images to the bit."""
-    import runtime.temporal as rt
-
-    monkeypatch.setattr(rt, "local_share", 0.5)
-    rt._balance(50, 100, [1.0, 3.0])             # this side 3x faster: target 0.75, capped
-    assert rt.local_share == pytest.approx(0.625)
-    rt._balance(60, 100, [0.06, 0.04])           # both 1 row/ms: target 0.5
-    assert rt.local_share == pytest.approx(0.5625)
-    rt._balance(60, 100, [])                     # no answer from the helper: unchanged
-    assert rt.local_share == pytest.approx(0.5625)
-    for _ in range(20):
-        rt._balance(50, 100, [1.0, 0.1])
-    assert rt.local_share == rt.LOCAL_SHARE_RANGE[0]
-
-    monkeypatch.setattr(rt, "HELPER_MIN_PIXELS", 0)
-    path, _, _ = model_file
-    frames = [_frame(t, 40, 64) for t in range(3)]
-    ref = Denoiser.load(path, log=lambda m: None, driver_threads=1)
-    want = [ref(f) for f in frames]
-    for share in (0.35, 0.65):
-        monkeypatch.setattr(rt, "LOCAL_SHARE_RANGE", (share, share))
-        monkeypatch.setattr(rt, "local_share", share)
-        den = Denoiser.load(path, log=lambda m: None, driver_threads=2, helper=True)
-        for f, w in zip(frames, want):
-            np.testing.assert_array_equal(den(f), w)
-
-
-@pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
 def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monkeypatch):
     import runtime.temporal
     from runtime import workers
