@@ -221,10 +221,7 @@ class Denoiser:
             fr = _as_frame(frame)
             for layer in self.frame_layers:
                 fr.layer(layer)  # FrameError naming the layer if absent
-            try:
-                fr.validate()
-            except FrameError:
-                raise
+            fr.validate()                     # FrameError naming what is wrong
             h, w = fr.size
             if fr.color.ndim != 3 or fr.color.shape[2] != 3:
                 raise FrameError(f"{fr.path or 'frame'}: color must be (H, W, 3), got {fr.color.shape}")
