@@ -163,6 +163,10 @@ class Denoiser:
         prof = None
         if profile:
             so.enable_profiling = True
+            # A profiled session that fails to load logs "Could not write a profile because no
+            # model was loaded" at error level when it is destroyed, beside the ModelFileError
+            # that already says what is wrong; load failures raise either way.
+            so.log_severity_level = 4
             so.profile_file_prefix = os.path.join(tempfile.mkdtemp(prefix="mcdenoise-prof-"), "ort")
         try:
             with warnings.catch_warnings():

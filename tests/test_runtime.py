@@ -161,12 +161,19 @@ def test_foreign_corrupt_and_missing_model_files(tmp_path):
         Denoiser.load(tmp_path / "other.onnx")
 
 
-def test_truncated_model_file(model_file, tmp_path):
+@pytest.mark.parametrize("profile", [False, True])
+def test_truncated_model_file(model_file, tmp_path, capfd, profile):
+    """One clear error, and nothing from onnxruntime on stderr (a profiled session that
+    failed to load logged its profiler's complaint there)."""
     path, _, _ = model_file
     data = path.read_bytes()
     (tmp_path / "cut.onnx").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ModelFileError):
-        Denoiser.load(tmp_path / "cut.onnx")
+    with pytest.raises(ModelFileError, match="cut.onnx: not a loadable ONNX model"):
+        Denoiser.load(tmp_path / "cut.onnx", profile=profile)
+    import gc
+
+    gc.collect()
+    assert capfd.readouterr().err == ""
 
 
 def test_stage_times_cover_graph_stages(model_file):
