@@ -103,11 +103,16 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
     skip = 1 if n_frames > 1 else 0
     log(den.stage_table(skip=skip))
     rows = den.stage_times()
+    timed, size, _ = den.timed_frames(skip)
     result = {"model": den.contract.spec_name, "frames": n_frames, "sequences": len(seqs),
               "sanitized_frames": den.report.sanitized_frames, "resets": den.report.resets,
-              "stage_ms_median": timing.medians(rows[skip:] or rows), "stage_ms_per_frame": rows}
+              "stage_ms_median": timing.medians(timed), "stage_median_size": list(size[::-1]) if size else None,
+              "stage_ms_per_frame": rows, "frame_sizes": [[w, h] for h, w in den.frame_sizes]}
     if refs:
-        result["psnr_db"] = psnr(np.stack(outs), np.stack(refs))
+        # Over all pixels of all frames (ANF Eq. 14's sequence PSNR), whatever their sizes:
+        # a sequence may change resolution, or a folder hold sequences of several.
+        result["psnr_db"] = psnr(np.concatenate([o.reshape(-1, 3) for o in outs]),
+                                 np.concatenate([r.reshape(-1, 3) for r in refs]))
         log(f"PSNR vs reference over {len(refs)} frames: {result['psnr_db']:.2f} dB (ANF Eq. 14)")
     log(f"wrote {n_frames} frame(s) of {len(seqs)} sequence(s) to {output}")
     return result

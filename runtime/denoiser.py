@@ -105,6 +105,8 @@ class Denoiser:
         self._log = log if log is not None else (lambda msg: print(f"mcdenoise: {msg}", file=sys.stderr))
         self.report = Report()
         self.timings: list[dict[str, float]] = []
+        #: (H, W) of each frame in ``timings``.
+        self.frame_sizes: list[tuple[int, int]] = []
         self._said: set[str] = set()
         self._profile_rows: list | None = None
         self._state: dict[str, np.ndarray] | None = None
@@ -323,6 +325,7 @@ class Denoiser:
         else:
             tm.ms.update(graph_stages)
         self.timings.append(tm.ms)
+        self.frame_sizes.append((h, w))
         self.report.frames += 1
         return image
 
@@ -381,15 +384,34 @@ class Denoiser:
                 rows[i].update(g)
         return rows
 
-    def stage_table(self, skip: int = 1, device: str | None = None) -> str:
-        """Paper-style table of median per-stage ms (first ``skip`` frames are warm-up)."""
+    def timed_frames(self, skip: int = 1) -> tuple[list[dict[str, float]], tuple[int, int] | None, int]:
+        """The per-frame stage times (:meth:`stage_times`) that one median should pool: after
+        the first ``skip`` frames (warm-up; all frames if there are no more), those at the
+        resolution most of them ran at (ties: the one seen last), because a median over two
+        resolutions describes neither.  Returns (rows, (H, W) or None before any frame, how
+        many frames at other resolutions were left out)."""
         rows = self.stage_times()
-        use = rows[skip:] if len(rows) > skip else rows
+        use = list(range(len(rows)))
+        use = use[skip:] if len(use) > skip else use
+        if not use:
+            return [], self._size, 0
+        sizes = [self.frame_sizes[i] for i in use]
+        size = max(set(sizes), key=lambda s: (sizes.count(s), max(j for j, t in enumerate(sizes) if t == s)))
+        kept = [rows[i] for i, s in zip(use, sizes) if s == size]
+        return kept, size, len(use) - len(kept)
+
+    def stage_table(self, skip: int = 1, device: str | None = None) -> str:
+        """Paper-style table of median per-stage ms (first ``skip`` frames are warm-up; frames
+        at other resolutions than most, see :meth:`timed_frames`, are left out and counted)."""
+        use, size, other = self.timed_frames(skip)
         med = timing.medians(use)
-        h, w = self._size or (0, 0)
+        h, w = size or (0, 0)
+        resolution = f"{w}x{h}"
+        if other:
+            resolution += f" ({other} frame{'s' if other > 1 else ''} at other sizes left out)"
         order = list(timing.DRIVER_STAGES_BEFORE) + self.graph_stages + list(timing.DRIVER_STAGES_AFTER)
         title = f"{self.contract.spec_name}: per-stage time"
         if device is None:
             provider = self.session.get_providers()[0]
             device = timing.cpu_name() if provider == "CPUExecutionProvider" else provider
-        return timing.format_table(med, order, self.contract.paper, f"{w}x{h}", title, len(use), device)
+        return timing.format_table(med, order, self.contract.paper, resolution, title, len(use), device)

@@ -130,7 +130,7 @@ def format_table(ours: dict[str, float], stages: list[str], paper: dict | None, 
     pdev = paper.get("device", "")
     pres = paper.get("resolution", "")
     lines = [title,
-             f"median over {n_frames} frames at {resolution} on {device}; paper: {pdev} at {pres}".rstrip(),
+             f"median over {n_frames} frame{'' if n_frames == 1 else 's'} at {resolution} on {device}; paper: {pdev} at {pres}".rstrip(),
              f"{'stage':<20}{'ours ms':>12}{'paper ms':>12}", "-" * 44]
     for s in stages + [GRAPH, TOTAL]:
         if s not in ours:

@@ -186,3 +186,42 @@ def test_two_files_of_one_spec_are_refused_by_name(tmp_path, capsys):
         err = capsys.readouterr().err
         assert str(a) in err and str(b) in err and "'wskpn-3'" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_score_pools_frames_of_several_sizes():
+    """evaluate's score: frames of one size give the metrics of their stacks exactly; frames
+    of several sizes pool as one size does (PSNR/SMAPE/relMSE over all pixels, SSIM over all
+    window positions, FLIP over all pixels) and TRMAE runs over equal-sized frames."""
+    from runtime import metrics
+    from training.evaluate import score
+
+    rng = np.random.default_rng(3)
+
+    def img(h, w):
+        return rng.random((h, w, 3), dtype=np.float32) * 2
+
+    a_out, a_ref = [img(20, 24) for _ in range(3)], [img(20, 24) for _ in range(3)]
+    one = score(a_out, a_ref, [3])
+    so, sr = np.stack(a_out), np.stack(a_ref)
+    assert one == {"psnr": metrics.psnr(so, sr), "ssim": metrics.ssim(so, sr), "flip": metrics.flip(so, sr),
+                   "smape": metrics.smape(so, sr), "relmse": metrics.relmse(so, sr),
+                   "trmae": metrics.trmae(so, sr), "frames": 3}
+    # A second sequence that changes size after two frames; its last frame is exact, so it
+    # pulls SSIM to 1 and FLIP to 0 in proportion to its window positions and pixels.
+    b_out, b_ref = [img(16, 30), img(16, 30), img(14, 12)], [img(16, 30), img(16, 30), None]
+    b_ref[2] = b_out[2].copy()
+    mixed = score(a_out + b_out, a_ref + b_ref, [3, 3])
+    flat = lambda xs: np.concatenate([x.reshape(-1, 3) for x in xs])
+    assert mixed["psnr"] == metrics.psnr(flat(a_out + b_out), flat(a_ref + b_ref))
+    assert mixed["smape"] == metrics.smape(flat(a_out + b_out), flat(a_ref + b_ref))
+    win = {(20, 24): 3 * 10 * 14, (16, 30): 2 * 6 * 20, (14, 12): 1 * 4 * 2}
+    ssims = {(20, 24): one["ssim"], (16, 30): metrics.ssim(np.stack(b_out[:2]), np.stack(b_ref[:2])), (14, 12): 1.0}
+    assert mixed["ssim"] == pytest.approx(sum(ssims[k] * n for k, n in win.items()) / sum(win.values()), rel=1e-12)
+    flips = {(20, 24): (one["flip"], 3 * 480), (16, 30): (metrics.flip(np.stack(b_out[:2]), np.stack(b_ref[:2])), 2 * 480),
+             (14, 12): (0.0, 168)}
+    assert mixed["flip"] == pytest.approx(sum(v * n for v, n in flips.values()) / sum(n for _, n in flips.values()), rel=1e-12)
+    # TRMAE: sequence a, and b's first two frames (its third is a run of one: no derivative).
+    want = np.mean([one["trmae"], metrics.trmae(np.stack(b_out[:2]), np.stack(b_ref[:2]))])
+    assert mixed["trmae"] == pytest.approx(want, rel=1e-12) and mixed["frames"] == 6
+    with pytest.raises(ValueError, match="frame 1 is"):
+        score([img(20, 24), img(20, 24)], [img(20, 24), img(20, 22)], [2])

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from runtime.denoiser import Denoiser, ModelFileError
-from runtime.frames import Frame, FrameError, write_frame
+from runtime.frames import Frame, FrameError, read_frame, read_rgb, write_frame
 from runtime.inputs import frame_inputs
 from runtime.methods import shipped_models
 from training.bench import synthetic_frame
@@ -241,6 +241,44 @@ def test_denoise_command_on_a_sequence(model_file, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == [f"frame_{t:04d}.{e}" for t in range(3) for e in ("exr", "png")]
     assert main(["denoise", "--model", str(tmp_path / "nope.onnx"), "--input", str(seq),
                  "--output", str(out)]) == 2
+
+
+def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
+    """A sequence that changes resolution mid-way and a second sequence at a third size: the
+    command resets the state (said once), scores PSNR over all pixels of all frames, and
+    times only the frames at one resolution, saying how many it left out."""
+    import json
+
+    from runtime.cli import main
+    from runtime.denoise import run
+    from runtime.metrics import psnr
+
+    path, _, _ = model_file
+    sizes = {"a": [(24, 20), (24, 20), (24, 20), (30, 16)], "b": [(18, 22)]}
+    for seq, wh in sizes.items():
+        (tmp_path / seq).mkdir()
+        for t, (w, h) in enumerate(wh):
+            f = _frame(t, w, h)
+            f.reference = f.albedo.copy()
+            write_frame(tmp_path / seq / f"frame_{t:04d}.exr", f)
+    msgs = []
+    res = run(str(path), str(tmp_path), str(tmp_path / "out"), log=msgs.append)
+    assert res["frame_sizes"] == [list(s) for s in sizes["a"] + sizes["b"]]
+    assert res["stage_median_size"] == [24, 20]
+    assert any("median over 2 frames at 24x20 (2 frames at other sizes left out)" in m for m in msgs)
+    assert [r for _, r in res["resets"]].count("resolution changed from 24x20 to 30x16") == 1
+    outs, refs = [], []
+    for seq, wh in sizes.items():
+        for t in range(len(wh)):
+            outs.append(read_rgb(tmp_path / "out" / seq / f"frame_{t:04d}.exr"))
+            refs.append(read_frame(tmp_path / seq / f"frame_{t:04d}.exr").reference)
+    flat = lambda xs: np.concatenate([x.reshape(-1, 3) for x in xs])
+    assert res["psnr_db"] == pytest.approx(psnr(flat(outs), flat(refs)), rel=1e-9)
+    # ... and each frame's pixels count once: not the mean of per-frame or per-size PSNRs.
+    assert res["psnr_db"] != pytest.approx(np.mean([psnr(o, r) for o, r in zip(outs, refs)]), rel=1e-6)
+    assert main(["denoise", "--model", str(path), "--input", str(tmp_path / "a"),
+                 "--output", str(tmp_path / "out2"), "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["stage_median_size"] == [24, 20]
 
 
 def test_negative_model_output_is_clamped_and_counted(tmp_path):

@@ -69,16 +69,45 @@ def stored_spp(seqs: list[list[Frame]]) -> int:
 
 
 def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]) -> dict:
-    """Metrics of frames ``outs`` against ``refs`` (flat lists, sequences back to back with
-    lengths ``seq_lengths``): {psnr, ssim, flip, smape, relmse, trmae, frames}."""
-    o = np.stack(outs).astype(np.float32)
-    r = np.stack(refs).astype(np.float32)
-    res = {"psnr": metrics.psnr(o, r), "ssim": metrics.ssim(o, r), "flip": metrics.flip(o, r),
-           "smape": metrics.smape(o, r), "relmse": metrics.relmse(o, r)}
+    """Metrics of frames ``outs`` against ``refs`` ((H, W, 3) linear radiance; flat lists,
+    sequences back to back with lengths ``seq_lengths``): {psnr, ssim, flip, smape, relmse,
+    trmae, frames}.
+
+    Frames may differ in size (sequences of several sizes, a sequence that changes
+    resolution); every metric then pools as it does over frames of one size: PSNR, SMAPE and
+    relMSE over all pixels, SSIM over all valid window positions, FLIP over all pixels, TRMAE
+    over the runs of equal-sized frames within each sequence (mean over runs)."""
+    if len(outs) != len(refs) or sum(seq_lengths) != len(outs):
+        raise ValueError(f"score: {len(outs)} outputs, {len(refs)} references, sequences of "
+                         f"{sum(seq_lengths)} frames")
+    outs = [np.asarray(x, np.float32) for x in outs]
+    refs = [np.asarray(x, np.float32) for x in refs]
+    for i, (a, b) in enumerate(zip(outs, refs)):
+        if a.shape != b.shape:
+            raise ValueError(f"score: frame {i} is {a.shape}, its reference {b.shape}")
+    o = np.concatenate([x.reshape(-1, 3) for x in outs])
+    r = np.concatenate([x.reshape(-1, 3) for x in refs])
+    res = {"psnr": metrics.psnr(o, r), "smape": metrics.smape(o, r), "relmse": metrics.relmse(o, r)}
+    # Windowed metrics per frame size, weighted by what each one averages over.
+    by_size: dict[tuple, list[int]] = {}
+    for i, x in enumerate(outs):
+        by_size.setdefault(x.shape, []).append(i)
+    parts = {"ssim": [], "flip": []}           # (value, how many it averages over)
+    for (h, w, _), idx in by_size.items():
+        so, sr = np.stack([outs[i] for i in idx]), np.stack([refs[i] for i in idx])
+        win = (h - metrics.SSIM_WINDOW + 1) * (w - metrics.SSIM_WINDOW + 1)
+        parts["ssim"].append((metrics.ssim(so, sr), len(idx) * win))
+        parts["flip"].append((metrics.flip(so, sr), len(idx) * h * w))
+    for k, vw in parts.items():
+        res[k] = vw[0][0] if len(vw) == 1 else float(sum(v * n for v, n in vw) / sum(n for _, n in vw))
     trm, start = [], 0
     for n in seq_lengths:
-        if n >= 2:
-            trm.append(metrics.trmae(o[start:start + n], r[start:start + n]))
+        run = start
+        for i in range(start, start + n + 1):
+            if i == start + n or outs[i].shape != outs[run].shape:
+                if i - run >= 2:
+                    trm.append(metrics.trmae(np.stack(outs[run:i]), np.stack(refs[run:i])))
+                run = i
         start += n
     res["trmae"] = float(np.mean(trm)) if trm else None
     res["frames"] = len(outs)
