@@ -1,7 +1,8 @@
 """``mcdenoise denoise --model FILE --input PATH --output DIR``: denoise a sequence, print timings.
 
 ``--input`` is a sequence folder of frame EXRs (our format), one frame EXR, or a plain colour
-EXR/PFM with optional ``--albedo``/``--normal`` images (the Open Image Denoise convention).
+EXR/PFM with optional ``--albedo``/``--normal`` images (the Open Image Denoise convention)
+and ``--depth`` (which the shipped models need too).
 Writes ``<output>/<name>.exr`` (plain R,G,B linear HDR) per frame, PNG previews with ``--png``,
 and prints the per-stage timing table (median over frames after the first) beside the paper's
 numbers, plus PSNR against the frames' reference when they carry one.
@@ -32,6 +33,8 @@ def add_arguments(p):
                    help="sequence folder, frame EXR, or plain colour EXR/PFM (default: the shipped sample sequence)")
     p.add_argument("--albedo", default=None, help="albedo image for a plain colour input")
     p.add_argument("--normal", default=None, help="normal image for a plain colour input")
+    p.add_argument("--depth", default=None,
+                   help="depth image for a plain colour input (one channel: Z, Y or a grey RGB EXR, or a Pf PFM; any unit)")
     p.add_argument("--output", required=True, metavar="DIR", help="folder for denoised EXRs")
     p.add_argument("--png", action="store_true", help="also write tonemapped PNG previews")
     p.add_argument("--no-profile", action="store_true",
@@ -45,7 +48,7 @@ def add_arguments(p):
     add_threads(p)
 
 
-def load_inputs(path: str, albedo: str | None = None, normal: str | None = None):
+def load_inputs(path: str, albedo: str | None = None, normal: str | None = None, depth: str | None = None):
     """Sequences in the input: a list of (sequence name, [(frame name, loader), ...]).
 
     A folder of frames is one sequence; a folder of sequence folders (what ``mcdenoise
@@ -64,8 +67,8 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None)
         return seqs
     if not os.path.exists(path):
         raise FrameError(f"{path}: no such file or folder")
-    if albedo or normal or path.lower().endswith(".pfm"):
-        return [("", [(Path(path).stem, lambda: read_plain(path, albedo, normal))])]
+    if albedo or normal or depth or path.lower().endswith(".pfm"):
+        return [("", [(Path(path).stem, lambda: read_plain(path, albedo, normal, depth))])]
     try:
         read_frame(path, layers=["color"], samples=False)
         return [("", [(Path(path).stem, lambda: read_frame(path, samples=False))])]
@@ -74,7 +77,7 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None)
 
 
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
-        threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu",
+        threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu", depth=None,
         autoexposure: bool = True) -> dict:
     from runtime.methods import PROVIDERS
 
@@ -83,7 +86,7 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
     if device == "cuda" and den.session.get_providers()[0] != "CUDAExecutionProvider":
         raise ValueError(f"{model}: onnxruntime has no CUDA provider here (providers: "
                          f"{', '.join(den.session.get_providers())}); install onnxruntime-gpu")
-    seqs = load_inputs(input_path, albedo, normal)
+    seqs = load_inputs(input_path, albedo, normal, depth)
     outs, refs = [], []
     n_frames = 0
     for seq_name, items in seqs:
@@ -92,6 +95,10 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
         out_dir.mkdir(parents=True, exist_ok=True)
         for name, load in items:
             frame = load()
+            missing = [l for l in den.frame_layers if getattr(frame, l, None) is None]
+            if missing and frame.meta.get("source") == "plain":
+                raise FrameError(f"{frame.path}: model {den.contract.spec_name} needs {', '.join(missing)} "
+                                 f"beside the colour: give " + " ".join(f"--{l} FILE" for l in missing))
             image = den(frame)
             n_frames += 1
             write_rgb(out_dir / f"{name}.exr", image, meta={"model": den.contract.spec_name, "source": frame.path})
@@ -120,7 +127,8 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
 
 def main(args) -> int:
     result = run(args.model, args.input, args.output, png=args.png, profile=not args.no_profile,
-                 threads=args.threads, albedo=args.albedo, normal=args.normal, device=args.device,
+                 threads=args.threads, albedo=args.albedo, normal=args.normal, depth=args.depth,
+                 device=args.device,
                  autoexposure=not args.no_autoexposure)
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2, default=float) + "\n")

@@ -134,6 +134,36 @@ def test_plain_oidn_style_inputs(tmp_path):
         F.read_plain(tmp_path / "color.exr", tmp_path / "small.exr")
 
 
+def test_plain_depth_image(tmp_path):
+    """A depth image for a plain input: an EXR Z channel, a greyscale PFM or a grey RGB EXR
+    give the same (H, W, 1) plane; a colour PFM or different R, G, B are refused by name."""
+    import OpenEXR
+
+    rng = np.random.default_rng(2)
+    col = rng.random((5, 6, 3), dtype=np.float32)
+    d = (1 + rng.random((5, 6))).astype(np.float32)
+    F.write_rgb(tmp_path / "color.exr", col)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"Z": d}).write(str(tmp_path / "z.exr"))
+    with open(tmp_path / "d.pfm", "wb") as fh:
+        fh.write(b"Pf\n6 5\n-1.0\n" + d[::-1].astype("<f4").tobytes())
+    F.write_rgb(tmp_path / "grey.exr", np.repeat(d[..., None], 3, axis=-1))
+    for name in ("z.exr", "d.pfm", "grey.exr"):
+        fr = F.read_plain(tmp_path / "color.exr", depth=tmp_path / name)
+        assert fr.depth.shape == (5, 6, 1)
+        np.testing.assert_array_equal(fr.depth[..., 0], d)
+        fr.validate()
+    with open(tmp_path / "c.pfm", "wb") as fh:
+        fh.write(b"PF\n6 5\n-1.0\n" + col[::-1].astype("<f4").tobytes())
+    with pytest.raises(F.FrameError, match="greyscale PFM"):
+        F.read_plain(tmp_path / "color.exr", depth=tmp_path / "c.pfm")
+    with pytest.raises(F.FrameError, match="found different R, G, B"):
+        F.read_plain(tmp_path / "color.exr", depth=tmp_path / "color.exr")
+    F.write_rgb(tmp_path / "small.exr", np.repeat(d[:4, :, None], 3, axis=-1))
+    with pytest.raises(F.FrameError, match="depth image is 6x4, colour .* is 6x5"):
+        F.read_plain(tmp_path / "color.exr", depth=tmp_path / "small.exr")
+
+
 def test_validate_rejects_wrong_shapes():
     fr = _frame()
     fr.depth = np.zeros((6, 7, 3), np.float32)

@@ -281,6 +281,28 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
     assert json.loads((tmp_path / "r.json").read_text())["stage_median_size"] == [24, 20]
 
 
+def test_denoise_command_on_plain_images(model_file, tmp_path, capsys):
+    """A plain colour image (the Open Image Denoise convention) with the albedo, normal and
+    depth images a model needs gives the driver's image of the same frame; without them the
+    command names the flags to give, in one line."""
+    from runtime.cli import main
+    from runtime.frames import write_rgb
+
+    path, _, _ = model_file
+    f = _frame(0)
+    write_rgb(tmp_path / "color.exr", f.color)
+    write_rgb(tmp_path / "albedo.exr", f.albedo)
+    write_rgb(tmp_path / "normal.exr", f.normal)
+    write_rgb(tmp_path / "depth.exr", np.repeat(f.depth, 3, axis=-1))
+    args = ["denoise", "--model", str(path), "--input", str(tmp_path / "color.exr"), "--output", str(tmp_path / "o")]
+    assert main(args + ["--albedo", str(tmp_path / "albedo.exr")]) == 2
+    assert "needs normal, depth beside the colour: give --normal FILE --depth FILE" in capsys.readouterr().err
+    assert main(args + ["--albedo", str(tmp_path / "albedo.exr"), "--normal", str(tmp_path / "normal.exr"),
+                        "--depth", str(tmp_path / "depth.exr")]) == 0
+    want = Denoiser.load(path, log=lambda m: None)(Frame(color=f.color, albedo=f.albedo, normal=f.normal, depth=f.depth))
+    np.testing.assert_array_equal(read_rgb(tmp_path / "o" / "color.exr"), want)
+
+
 def test_negative_model_output_is_clamped_and_counted(tmp_path):
     """A contract-carrying graph that returns -color: the driver must not hand out negative
     radiance, and says so."""
