@@ -19,7 +19,7 @@ from runtime import timing
 from runtime.args import add_threads
 from runtime.denoiser import Denoiser
 from runtime.frames import FrameError, frame_paths, read_frame, read_plain, write_png, write_rgb
-from runtime.metrics import psnr
+from runtime.metrics import pixels, psnr
 from runtime.transfer import gamma
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,8 +118,7 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
     if refs:
         # Over all pixels of all frames (ANF Eq. 14's sequence PSNR), whatever their sizes:
         # a sequence may change resolution, or a folder hold sequences of several.
-        result["psnr_db"] = psnr(np.concatenate([o.reshape(-1, 3) for o in outs]),
-                                 np.concatenate([r.reshape(-1, 3) for r in refs]))
+        result["psnr_db"] = psnr(pixels(outs), pixels(refs))
         log(f"PSNR vs reference over {len(refs)} frames: {result['psnr_db']:.2f} dB (ANF Eq. 14)")
     log(f"wrote {n_frames} frame(s) of {len(seqs)} sequence(s) to {output}")
     return result

@@ -30,6 +30,12 @@ def _mean(x):
     return x.mean()
 
 
+def pixels(frames) -> np.ndarray:
+    """Every pixel of a list of (H, W, 3) frames of any sizes as one (P, 3) array: the
+    per-pixel metrics (PSNR, SMAPE, relMSE) of it pool frames as one size's stack does."""
+    return np.concatenate([np.asarray(f).reshape(-1, 3) for f in frames])
+
+
 def smape(pred, ref, eps: float = SMAPE_EPS):
     """WSKPN Eq. 6: mean of |p - r| / (|p| + |r| + eps) over pixels and channels. Range [0, 1]."""
     if xp(pred) is np:

@@ -211,7 +211,7 @@ def test_score_pools_frames_of_several_sizes():
     b_out, b_ref = [img(16, 30), img(16, 30), img(14, 12)], [img(16, 30), img(16, 30), None]
     b_ref[2] = b_out[2].copy()
     mixed = score(a_out + b_out, a_ref + b_ref, [3, 3])
-    flat = lambda xs: np.concatenate([x.reshape(-1, 3) for x in xs])
+    flat = metrics.pixels
     assert mixed["psnr"] == metrics.psnr(flat(a_out + b_out), flat(a_ref + b_ref))
     assert mixed["smape"] == metrics.smape(flat(a_out + b_out), flat(a_ref + b_ref))
     win = {(20, 24): 3 * 10 * 14, (16, 30): 2 * 6 * 20, (14, 12): 1 * 4 * 2}

@@ -272,7 +272,7 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
         for t in range(len(wh)):
             outs.append(read_rgb(tmp_path / "out" / seq / f"frame_{t:04d}.exr"))
             refs.append(read_frame(tmp_path / seq / f"frame_{t:04d}.exr").reference)
-    flat = lambda xs: np.concatenate([x.reshape(-1, 3) for x in xs])
+    from runtime.metrics import pixels as flat
     assert res["psnr_db"] == pytest.approx(psnr(flat(outs), flat(refs)), rel=1e-9)
     # ... and each frame's pixels count once: not the mean of per-frame or per-size PSNRs.
     assert res["psnr_db"] != pytest.approx(np.mean([psnr(o, r) for o, r in zip(outs, refs)]), rel=1e-6)

@@ -85,8 +85,7 @@ def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]
     for i, (a, b) in enumerate(zip(outs, refs)):
         if a.shape != b.shape:
             raise ValueError(f"score: frame {i} is {a.shape}, its reference {b.shape}")
-    o = np.concatenate([x.reshape(-1, 3) for x in outs])
-    r = np.concatenate([x.reshape(-1, 3) for x in refs])
+    o, r = metrics.pixels(outs), metrics.pixels(refs)
     res = {"psnr": metrics.psnr(o, r), "smape": metrics.smape(o, r), "relmse": metrics.relmse(o, r)}
     # Windowed metrics per frame size, weighted by what each one averages over.
     by_size: dict[tuple, list[int]] = {}
