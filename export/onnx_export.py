@@ -36,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, Contract, contract_metadata, node_prefix,
+from mcdenoise.runtime.args import CommandError
+from mcdenoise.runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, Contract, contract_metadata, node_prefix,
                               parse_contract, state_input_name, state_output_name)
-from runtime.frames import PIXEL_LAYERS
+from mcdenoise.runtime.frames import PIXEL_LAYERS
 
 DEFAULT_OPSET = 17
 #: (H, W) of the traced example input, and of the parity check input (deliberately different,
@@ -59,7 +60,7 @@ DARK_FRACTION = 1e-3
 _LAYER_CHANNELS = {layer.name: len(layer.channels) for layer in PIXEL_LAYERS}
 
 
-class ExportError(RuntimeError):
+class ExportError(CommandError, RuntimeError):
     """An exported graph failed a check (stage prefixes, onnx checker, parity)."""
 
 
@@ -150,7 +151,7 @@ def _stage_entry(model, stage: str) -> dict:
 
 def build_contract(spec, model, code_hash: str, export_info: dict | None = None) -> Contract:
     """The :class:`runtime.contract.Contract` of ``model`` built from ``spec``."""
-    from training.specs import spec_hash
+    from mcdenoise.training.specs import spec_hash
 
     layers = set(spec.inputs.layers)
     state_in = {state_input_name(s.name): s for s in spec.state}
@@ -218,8 +219,8 @@ def check_bands(model_bytes: bytes, contract: Contract, feeds: dict, whole: dict
     ``feeds``; the runtime must also be able to cut the graph there.  Raises ExportError."""
     import onnxruntime as ort
 
-    from runtime.bands import BandedStage
-    from runtime.graphcut import GraphCutError
+    from mcdenoise.runtime.bands import BandedStage
+    from mcdenoise.runtime.graphcut import GraphCutError
 
     if not any("halo" in s for s in contract.stages):
         return
@@ -260,8 +261,8 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
     import onnxruntime as ort
     import torch
 
-    from training.models import example_inputs
-    from training.runs import code_hash as current_code_hash
+    from mcdenoise.training.models import example_inputs
+    from mcdenoise.training.runs import code_hash as current_code_hash
 
     if opset < 17:
         raise ValueError(f"opset must be >= 17 (AveragePool/ReduceMax semantics relied on), got {opset}")
@@ -335,7 +336,7 @@ def export_run(run_dir: str | os.PathLike, out_path: str | os.PathLike, opset: i
     The contract's code hash is the run's ``code_hash.txt`` (the code that trained it) when
     present, else the current tree's.
     """
-    from training import runs
+    from mcdenoise.training import runs
 
     spec, model, _ = runs.load_run(run_dir)
     ch_file = Path(run_dir) / runs.CODE_HASH_FILE

@@ -22,7 +22,7 @@ import warnings
 
 import numpy as np
 
-from runtime.args import parse_size
+from mcdenoise.runtime.args import parse_size
 
 
 def _median_ms(fn, warmup: int, repeats: int) -> float:
@@ -52,7 +52,7 @@ def _session(path: str, threads: int, profile: bool = False):
 def stage_split_ms(path: str, feeds: dict, stages, threads: int, runs: int = 3) -> dict[str, float]:
     """Median per-stage onnxruntime kernel time (ms) over ``runs`` profiled runs after one
     warm-up, split by :func:`runtime.timing.graph_stage_times` (the runtime's own rule)."""
-    from runtime.timing import graph_stage_times
+    from mcdenoise.runtime.timing import graph_stage_times
 
     sess = _session(path, threads, profile=True)
     for _ in range(runs + 1):
@@ -67,7 +67,7 @@ def time_kernels(size: tuple[int, int], threads: int, warmup: int, repeats: int,
     ``size`` (W, H): {"<path> ort": ms, "<path> torch": ms}."""
     import torch
 
-    from training.models.wskpn import fuse_kernels
+    from mcdenoise.training.models.wskpn import fuse_kernels
 
     w, h = size
     m = len(kernel_sizes)
@@ -105,9 +105,9 @@ def time_model(spec_name: str, size: tuple[int, int], threads: int, warmup: int,
     "ort <stage>": ms...}.  Exported with :func:`export.onnx_export.export_model` (all checks)."""
     import torch
 
-    from export.onnx_export import export_model
-    from training.models import example_inputs
-    from training.specs import build_model, load_spec
+    from mcdenoise.export.onnx_export import export_model
+    from mcdenoise.training.models import example_inputs
+    from mcdenoise.training.specs import build_model, load_spec
 
     spec = load_spec(spec_name)
     torch.manual_seed(0)
@@ -151,7 +151,7 @@ def main(argv=None) -> int:
             r = time_kernels(size, a.threads, a.warmup, a.repeats)
             print(f"kernels {size[0]}x{size[1]}: " + ", ".join(f"{k} {v:.1f} ms" for k, v in r.items()), flush=True)
     if a.what in ("models", "all"):
-        from training.specs import list_specs
+        from mcdenoise.training.specs import list_specs
 
         for name in a.specs or list_specs():
             for size in a.sizes:

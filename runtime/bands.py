@@ -23,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from runtime import graphcut, workers
+from mcdenoise.runtime import graphcut, workers
 
 #: Rows per band: 40-64 were equally fast at 1280x720 (a band's tensors then fit a core's
 #: 2 MB L2 cache); shorter bands pay more halo and more per-run overhead.

@@ -13,22 +13,20 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
 
-from runtime import timing
-from runtime.args import add_threads
-from runtime.denoiser import Denoiser
-from runtime.frames import FrameError, frame_paths, read_frame, read_plain, write_png, write_rgb
-from runtime.metrics import pixels, psnr
-from runtime.transfer import gamma
+from mcdenoise.runtime import data_path, timing
+from mcdenoise.runtime.args import add_threads
+from mcdenoise.runtime.denoiser import Denoiser
+from mcdenoise.runtime.frames import FrameError, frame_paths, read_frame, read_plain, write_png, write_rgb
+from mcdenoise.runtime.metrics import pixels, psnr
+from mcdenoise.runtime.transfer import gamma
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_MODEL = ROOT / "models" / "wskpn-3.onnx"
-SAMPLE_SEQUENCE = ROOT / "samples" / "sequence"
+DEFAULT_MODEL = data_path("models", "wskpn-3.onnx")
+SAMPLE_SEQUENCE = data_path("samples", "sequence")
 
 
 def add_arguments(p):
-    p.add_argument("--model", default=str(DEFAULT_MODEL), help=f"ONNX model (default {DEFAULT_MODEL.relative_to(ROOT)})")
+    p.add_argument("--model", default=str(DEFAULT_MODEL), help="ONNX model (default: the shipped models/wskpn-3.onnx)")
     p.add_argument("--input", default=str(SAMPLE_SEQUENCE),
                    help="sequence folder, frame EXR, or plain colour EXR/PFM (default: the shipped sample sequence)")
     p.add_argument("--albedo", default=None, help="albedo image for a plain colour input")
@@ -79,7 +77,7 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None,
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
         threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu", depth=None,
         autoexposure: bool = True) -> dict:
-    from runtime.methods import PROVIDERS
+    from mcdenoise.runtime.methods import PROVIDERS
 
     den = Denoiser.load(model, threads=threads, profile=profile and device == "cpu",
                         providers=PROVIDERS[device], autoexposure=autoexposure)

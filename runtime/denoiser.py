@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime import bands as bands_mod, graphcut, timing, transfer
-from runtime.contract import parse_contract
-from runtime.frames import Frame, FrameError
-from runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
-from runtime.temporal import reproject
-from runtime import workers
-from runtime.workers import MAX_DEFAULT_THREADS, default_threads
+from mcdenoise.runtime import bands as bands_mod, graphcut, timing, transfer
+from mcdenoise.runtime.contract import parse_contract
+from mcdenoise.runtime.frames import Frame, FrameError
+from mcdenoise.runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
+from mcdenoise.runtime.temporal import reproject
+from mcdenoise.runtime import workers
+from mcdenoise.runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
 #: Guide layers stored for the consistency test, when the frame has them.
 GUIDE_LAYERS = ("depth", "position", "normal")

@@ -1,6 +1,6 @@
 """FLOP / FMA and parameter counts of an ONNX graph at a concrete resolution.
 
-    from runtime.flops import count_flops
+    from mcdenoise.runtime.flops import count_flops
     c = count_flops("models/wskpn-3.onnx", 1280, 720)
     c.flops, c.fmas, c.params, c.per_stage["prediction"]["flops"]
 
@@ -300,7 +300,7 @@ def stage_of(node_name: str, stages) -> str:
 
 def _stages_from_names(model) -> list[str]:
     try:
-        from runtime.contract import parse_contract
+        from mcdenoise.runtime.contract import parse_contract
 
         return parse_contract({p.key: p.value for p in model.metadata_props}).stage_names
     except ValueError:

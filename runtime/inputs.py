@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.frames import Frame
-from runtime.workers import run_all
+from mcdenoise.runtime.frames import Frame
+from mcdenoise.runtime.workers import run_all
 
 #: Radiance above this is clamped when sanitising (units of the renderer; our scenes' emitters
 #: are <= ~100, so only broken samples get here).  Chosen below float16's max (65504) so
@@ -74,7 +74,7 @@ def exposure_scale(color):
     Images smaller than a block use their whole-image mean; an image with no block brighter
     than :data:`AUTOEXPOSURE_MIN` gets 1.  Not differentiated (a per-image constant).
     """
-    from runtime.transfer import luminance, xp
+    from mcdenoise.runtime.transfer import luminance, xp
 
     lib = xp(color)
     lum = luminance(color, 1)[:, 0]                                   # (N, H, W)

@@ -1,7 +1,7 @@
 """``mcdenoise inspect FILE...``: print the layers, statistics and metadata of frame files."""
 from __future__ import annotations
 
-from runtime.frames import describe
+from mcdenoise.runtime.frames import describe
 
 
 def add_arguments(p):

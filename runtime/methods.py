@@ -23,14 +23,14 @@ import os
 
 import numpy as np
 
-from runtime.frames import Frame, FrameError
+from mcdenoise.runtime.frames import Frame, FrameError
 
 #: Built-in method names (besides ONNX file paths).
 BUILTIN = ("noisy", "oidn-high", "oidn-fast", "svgf")
 
 
 def _frame(frame) -> Frame:
-    from runtime.denoiser import _as_frame
+    from mcdenoise.runtime.denoiser import _as_frame
 
     return _as_frame(frame)
 
@@ -94,7 +94,7 @@ class ONNXModel:
     """An mcdenoise ONNX file run by the runtime driver (temporal state included)."""
 
     def __init__(self, path: str, threads: int = 0, providers=None, profile: bool = False, log=None):
-        from runtime.denoiser import Denoiser
+        from mcdenoise.runtime.denoiser import Denoiser
 
         self.denoiser = Denoiser.load(path, providers=providers, threads=threads, profile=profile,
                                       log=log or (lambda m: None))
@@ -129,7 +129,7 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
     if name.startswith("oidn-"):
         return OIDN(name[len("oidn-"):])
     if name == "svgf":
-        from runtime.svgf import SVGF
+        from mcdenoise.runtime.svgf import SVGF
 
         return SVGF()
     raise ValueError(f"unknown method {name!r}: give an .onnx file or one of {', '.join(BUILTIN)}")
@@ -151,5 +151,7 @@ def shipped_models(root: str | os.PathLike | None = None) -> list[str]:
     """Paths of the ONNX models shipped in the repository's ``models/`` folder, sorted."""
     from pathlib import Path
 
-    base = Path(root) if root else Path(__file__).resolve().parent.parent / "models"
+    from mcdenoise.runtime import data_path
+
+    base = Path(root) if root else data_path("models")
     return sorted(str(p) for p in base.glob("*.onnx"))

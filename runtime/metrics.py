@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from runtime.transfer import reinhard_gamma, xp
+from mcdenoise.runtime.transfer import reinhard_gamma, xp
 
 #: epsilon of SMAPE (WSKPN Eq. 6, Vogels et al. 2018) and relMSE / TRMAE (ANF Eq. 16).
 SMAPE_EPS = 0.01

@@ -38,12 +38,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.denoiser import GUIDE_LAYERS, _as_frame
-from runtime.frames import FrameError
-from runtime.inputs import ALBEDO_EPS, SanitizeReport, sanitize_array
-from runtime.temporal import reproject
-from runtime.workers import default_threads
-from runtime.transfer import LUMA as TRANSFER_LUMA
+from mcdenoise.runtime.denoiser import GUIDE_LAYERS, _as_frame
+from mcdenoise.runtime.frames import FrameError
+from mcdenoise.runtime.inputs import ALBEDO_EPS, SanitizeReport, sanitize_array
+from mcdenoise.runtime.temporal import reproject
+from mcdenoise.runtime.workers import default_threads
+from mcdenoise.runtime.transfer import LUMA as TRANSFER_LUMA
 
 #: Exponential moving average weights of colour and moments (SVGF: 0.2 each).
 ALPHA_COLOR = 0.2

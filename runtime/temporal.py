@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.transfer import xp
-from runtime import workers
+from mcdenoise.runtime.transfer import xp
+from mcdenoise.runtime import workers
 
 #: A tap is consistent when its world position lies within this fraction of the current
 #: depth (≈ 8 pixel footprints at 256 px and 45° fov: loose enough for slanted surfaces,

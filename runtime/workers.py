@@ -252,10 +252,8 @@ class _Helper:
         from multiprocessing.connection import Connection
 
         parent, child = socket.socketpair()
-        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        code = ("import sys; sys.path.insert(0, sys.argv[2]); "
-                "from runtime.workers import _helper_main; _helper_main(int(sys.argv[1]))")
-        self.proc = subprocess.Popen([sys.executable, "-c", code, str(child.fileno()), root],
+        code = "import sys; from mcdenoise.runtime.workers import _helper_main; _helper_main(int(sys.argv[1]))"
+        self.proc = subprocess.Popen([sys.executable, "-c", code, str(child.fileno())],
                                      pass_fds=(child.fileno(),), stdin=subprocess.DEVNULL)
         child.close()
         self.conn = Connection(parent.detach())

@@ -32,7 +32,7 @@ def tiny_dataset(tmp_path_factory) -> str:
     except ImportError as e:  # a missing renderer is an install error, never a silent skip
         raise RuntimeError("the tests render data: pip install -e '.[all]' (Mitsuba 3)") from e
     out = str(tmp_path_factory.mktemp("tiny") / "data")
-    cmd = [sys.executable, "-m", "runtime.cli", "render", "--out", out, *TINY_ARGS, "--variant", render_variant()]
+    cmd = [sys.executable, "-m", "mcdenoise.runtime.cli", "render", "--out", out, *TINY_ARGS, "--variant", render_variant()]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     if proc.returncode != 0:
         raise RuntimeError(f"tiny render failed ({' '.join(cmd)}):\n{proc.stderr[-4000:]}")

@@ -8,10 +8,10 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from runtime.cli import main as cli_main
-from runtime.flops import count_flops, cpu_peak
-from runtime.methods import shipped_models
-from training import bench
+from mcdenoise.runtime.cli import main as cli_main
+from mcdenoise.runtime.flops import count_flops, cpu_peak
+from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training import bench, harness, scoring
 
 
 def _rows(path):
@@ -63,11 +63,11 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
 def test_pareto_front():
     pts = {"noisy": (0.0, 16.0), "a": (5.0, 24.0), "b": (10.0, 23.0), "c": (12.0, 26.0),
            "d": (12.0, 25.0), "e": (30.0, 26.0), "f": (40.0, 27.0)}
-    assert bench.pareto_front(pts) == ["noisy", "a", "c", "f"]
+    assert scoring.pareto_front(pts) == ["noisy", "a", "c", "f"]
     # equal points are both kept; a point equal in time but better in quality dominates
-    assert bench.pareto_front({"x": (1.0, 2.0), "y": (1.0, 2.0)}) == ["x", "y"]
-    assert bench.pareto_front({"x": (1.0, 2.0), "y": (1.0, 3.0)}) == ["y"]
-    assert bench.pareto_front({}) == []
+    assert scoring.pareto_front({"x": (1.0, 2.0), "y": (1.0, 2.0)}) == ["x", "y"]
+    assert scoring.pareto_front({"x": (1.0, 2.0), "y": (1.0, 3.0)}) == ["y"]
+    assert scoring.pareto_front({}) == []
 
 
 def _conv_model(cin, cout, k, groups, h, w, bias=True, stride=1):
@@ -122,12 +122,12 @@ def test_flops_of_a_model_conv_layers():
 
 
 def test_oidn_unet_count_and_peak():
-    c = bench.oidn_unet_count(1280, 720)
+    c = harness.oidn_unet_count(1280, 720)
     # hand sum of the published layer table, FMAs per full-resolution pixel / 9:
     # full 8128 + half 13824/4 + quarter 27648/16 + eighth 35584/64 + sixteenth 16896/256
     assert c["fmas"] == 9 * (1280 * 720 * 8128 + 640 * 360 * 13824 + 320 * 180 * 27648
                              + 160 * 90 * 35584 + 80 * 45 * 16896)
-    assert c["padded"] == "1280x720" and bench.oidn_unet_count(100, 50)["padded"] == "112x64"
+    assert c["padded"] == "1280x720" and harness.oidn_unet_count(100, 50)["padded"] == "112x64"
     p = cpu_peak(threads=2)
     assert p["cores"] == 2 and p["flops_per_cycle"] in (8, 16, 32, 64)
 
@@ -137,8 +137,8 @@ def test_flops_of_an_nbg_graph_with_data_dependent_grid_sizes(tmp_path):
     # size the splat, so the counter runs the graph once for those shapes.
     import torch
 
-    from export.onnx_export import export_model
-    from training.specs import build_model, load_spec
+    from mcdenoise.export.onnx_export import export_model
+    from mcdenoise.training.specs import build_model, load_spec
 
     torch.manual_seed(0)
     spec = load_spec("nbg-2l-3g")
@@ -192,8 +192,8 @@ def test_score_pools_frames_of_several_sizes():
     """evaluate's score: frames of one size give the metrics of their stacks exactly; frames
     of several sizes pool as one size does (PSNR/SMAPE/relMSE over all pixels, SSIM over all
     window positions, FLIP over all pixels) and TRMAE runs over equal-sized frames."""
-    from runtime import metrics
-    from training.evaluate import score
+    from mcdenoise.runtime import metrics
+    from mcdenoise.training.scoring import score
 
     rng = np.random.default_rng(3)
 

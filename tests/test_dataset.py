@@ -3,10 +3,10 @@ normals and motion vectors consistent with the image under all 8 symmetries."""
 import numpy as np
 import pytest
 
-from runtime.frames import read_frame
-from runtime.inputs import camera_axes
-from runtime.temporal import reproject
-from training.dataset import SequenceDataset, collate, dihedral, discover, split
+from mcdenoise.runtime.frames import read_frame
+from mcdenoise.runtime.inputs import camera_axes
+from mcdenoise.runtime.temporal import reproject
+from mcdenoise.training.dataset import SequenceDataset, collate, dihedral, discover, split
 
 LAYERS = ("color", "albedo", "normal", "depth")
 
@@ -56,26 +56,27 @@ def test_dihedral_vector_convention():
 
 
 @pytest.mark.parametrize("k", range(8))
-def test_augmented_motion_vectors_still_warp_the_reference(tiny_dataset, k):
+def test_augmented_motion_vectors_still_warp_the_geometry(tiny_dataset, k):
+    """Under each of the 8 symmetries, frame t-1's first-hit positions warped with frame t's
+    (transformed) motion vectors land on frame t's positions. Positions are geometry, not Monte
+    Carlo estimates, so the bound holds for any renderer noise (llvm_ad_rgb and scalar_rgb
+    draw different samples): only the pixel jitter of the 4 samples and bilinear taps remain,
+    where a motion vector left untransformed lands on another surface point altogether.
+    (Radiance warps are checked against independent references in test_render.py.)"""
     ds = SequenceDataset(tiny_dataset, "all", LAYERS, crop=64, window=2, augment=False)
-    errs = []
     for seq_i in range(len(ds.seqs)):
         it = ds.make_item(seq_i, 1, 0, 0, 64, 4, k)
-        cur = {"depth": it["depth"][1][None], "position": it["position"][1][None],
-               "normal": it["normal_world"][1][None]}
-        prev = {"depth": it["depth"][0][None], "position": it["position"][0][None],
-                "normal": it["normal_world"][0][None]}
-        (warped,), hist = reproject([it["reference"][0][None]], it["motion"][1][None], cur, prev)
-        ok = hist[0, 0] > 0
-        assert ok.mean() > 0.3
-        ref = it["reference"][1]
-        errs.append((np.abs(warped[0] - ref)[:, ok].mean() / (ref[:, ok].mean() + 1e-3),
-                     np.abs(it["reference"][0] - ref)[:, ok].mean() / (ref[:, ok].mean() + 1e-3)))
-    warped_err = np.mean([e[0] for e in errs])
-    unwarped_err = np.mean([e[1] for e in errs])
-    # With wrongly transformed motion vectors the warp lands on the wrong pixels and the
-    # consistency test rejects them or the error matches the unwarped one.
-    assert warped_err < 0.5 * unwarped_err, (k, warped_err, unwarped_err)
+        cur, prev = {"depth": it["depth"][1][None]}, {"depth": it["depth"][0][None]}
+        (warped,), hist = reproject([it["position"][0][None]], it["motion"][1][None], cur, prev)
+        valid = it["valid"][1, 0] > 0
+        kept = valid & (hist[0, 0] > 0)
+        assert valid.mean() > 0.3 and kept.sum() > 0.5 * valid.sum(), (k, valid.mean(), kept.sum() / valid.sum())
+        pos = it["position"][1]
+        warped_err = np.linalg.norm(warped[0] - pos, axis=0)[kept].mean()
+        unwarped_err = np.linalg.norm(it["position"][0] - pos, axis=0)[kept].mean()
+        # Measured on the tiny set: 0.10-0.12 with the right transform, 0.43-1.5 with swapped
+        # or negated vectors.
+        assert warped_err < 0.25 * unwarped_err, (k, seq_i, warped_err, unwarped_err)
 
 
 @pytest.mark.parametrize("k", range(8))

@@ -11,12 +11,12 @@ import pytest
 import torch
 from onnx.reference import ReferenceEvaluator
 
-from export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, FLOAT32_MARGIN, PARITY_TOL, ExportError,
+from mcdenoise.export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, FLOAT32_MARGIN, PARITY_TOL, ExportError,
                                 export_model, export_run, parity_error, parity_errors, parity_ok, unstaged_nodes)
-from runtime import contract as C
-from training import runs
-from training.models import example_inputs
-from training.specs import build_model, list_specs, load_spec, parse_spec, spec_hash
+from mcdenoise.runtime import contract as C
+from mcdenoise.training import runs
+from mcdenoise.training.models import example_inputs
+from mcdenoise.training.specs import build_model, list_specs, load_spec, parse_spec, spec_hash
 
 SPECS = list_specs()
 #: Model type -> the stage that runs its neural network.
@@ -269,7 +269,7 @@ def test_export_run_rebuilds_from_the_run_folder_only(name, tmp_path):
 
 
 def test_export_command(tmp_path, capsys):
-    from runtime.cli import main
+    from mcdenoise.runtime.cli import main
 
     spec = load_spec(SPECS[0])
     torch.manual_seed(0)

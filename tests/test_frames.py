@@ -3,7 +3,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from runtime import frames as F
+from mcdenoise.runtime import frames as F
 
 
 def _frame(h=6, w=7, spp=2, seed=0):

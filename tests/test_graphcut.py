@@ -1,4 +1,4 @@
-"""runtime.graphcut: cutting a model before its last stage without the onnx package.
+"""mcdenoise.runtime.graphcut: cutting a model before its last stage without the onnx package.
 
 The head and the stage run one after the other must give the whole graph's outputs to the
 bit, for every shipped model; what the cut cannot handle is an error, not a wrong graph.
@@ -11,9 +11,9 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper
 
-from runtime import graphcut
-from runtime.contract import parse_contract
-from runtime.methods import shipped_models
+from mcdenoise.runtime import graphcut
+from mcdenoise.runtime.contract import parse_contract
+from mcdenoise.runtime.methods import shipped_models
 
 
 def _session(model: bytes):

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from runtime import metrics as M
-from runtime import transfer as T
+from mcdenoise.runtime import metrics as M
+from mcdenoise.runtime import transfer as T
 
 
 def test_smape_hand_computed():

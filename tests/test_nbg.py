@@ -10,11 +10,11 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from training.models import example_inputs
-from training.models.common import ALBEDO_EPS, demodulate, temporal_accumulate
-from training.models.nbg import (GUIDE_RANGE, NORMALIZATIONS, NBGParams, blend_weights, corner_coords, grid_shape,
+from mcdenoise.training.models import example_inputs
+from mcdenoise.training.models.common import ALBEDO_EPS, demodulate, temporal_accumulate
+from mcdenoise.training.models.nbg import (GUIDE_RANGE, NORMALIZATIONS, NBGParams, blend_weights, corner_coords, grid_shape,
                                  remove_outliers, slice_grid, splat)
-from training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
+from mcdenoise.training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
 
 NBG_SPECS = [n for n in list_specs() if load_spec(n).type == "nbg"]
 
@@ -244,8 +244,8 @@ def test_params_and_builder_are_validated():
 
 
 def test_three_training_steps(tiny_dataset, tmp_path):
-    from training import runs
-    from training.train import train
+    from mcdenoise.training import runs
+    from mcdenoise.training.train import train
 
     row = train("nbg-2l-3g", tiny_dataset, tmp_path / "run", steps=3, crop=32, batch_size=2, quiet=True,
                 val_every=0)

@@ -14,12 +14,12 @@ import sys
 import numpy as np
 import pytest
 
-from runtime.cli import main as cli_main
-from runtime.frames import MANIFEST, PIXEL_LAYERS, SAMPLE_FEATURES, SAMPLE_GROUPS, frame_name, pixel_means, read_frame
+from mcdenoise.runtime.cli import main as cli_main
+from mcdenoise.runtime.frames import MANIFEST, PIXEL_LAYERS, SAMPLE_FEATURES, SAMPLE_GROUPS, frame_name, pixel_means, read_frame
 from tests.conftest import REPO, TINY_ARGS, render_variant
-from training.render import camera as cam
-from training.render import command, procedural
-from training.render.variant import choose_variant, llvm_major
+from mcdenoise.training.render import camera as cam
+from mcdenoise.training.render import command, procedural
+from mcdenoise.training.render.variant import choose_variant, llvm_major
 
 G = SAMPLE_GROUPS
 SEQS = ("scene_0000000", "scene_0000001")
@@ -33,7 +33,7 @@ def tiny_args() -> argparse.Namespace:
 
 @pytest.fixture(scope="module")
 def mi():
-    from training.render.variant import init_mitsuba
+    from mcdenoise.training.render.variant import init_mitsuba
 
     return init_mitsuba(choose_variant(render_variant())[0])
 
@@ -66,7 +66,7 @@ def tonemap(x: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 
 def test_help_works_without_importing_mitsuba():
-    code = ("import sys\nfrom runtime.cli import main\n"
+    code = ("import sys\nfrom mcdenoise.runtime.cli import main\n"
             "try:\n    main(['render', '--help'])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
             "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
@@ -102,7 +102,7 @@ def test_unloadable_scene_file_is_a_clear_error(tmp_path, capsys, mi):
 
 
 def test_render_failure_is_one_line_naming_the_scene(tmp_path, capsys, monkeypatch, mi):
-    from training.render import renderer
+    from mcdenoise.training.render import renderer
 
     def fail(self, shape, position):
         raise RuntimeError("first line\nshape_index 7 hits lie outside shape 'x'")
@@ -129,10 +129,10 @@ def test_variant_choice(monkeypatch):
     with pytest.raises(ValueError, match="LLVM >= 16"):
         choose_variant("llvm_ad_rgb")
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
-    monkeypatch.setattr("training.render.variant.find_llvm", lambda: None)
+    monkeypatch.setattr("mcdenoise.training.render.variant.find_llvm", lambda: None)
     variant, reason = choose_variant("auto")
     assert variant == "scalar_rgb" and "no LLVM" in reason
-    monkeypatch.setattr("training.render.variant.find_llvm", lambda: ("/opt/libLLVM-19.so", 19))
+    monkeypatch.setattr("mcdenoise.training.render.variant.find_llvm", lambda: ("/opt/libLLVM-19.so", 19))
     assert choose_variant("auto")[0] == "llvm_ad_rgb" and os.environ["DRJIT_LIBLLVM_PATH"] == "/opt/libLLVM-19.so"
 
 
@@ -309,7 +309,7 @@ def test_generated_meshes_are_closed_and_face_outward(make):
 
 
 def test_exported_scene_rerenders_the_frames(tiny_dataset, frames, mi):
-    from training.render.renderer import to_mitsuba
+    from mcdenoise.training.render.renderer import to_mitsuba
 
     scene_dir = os.path.join(tiny_dataset, SEQS[0], "scene")
     f0 = frames[SEQS[0]][0]
@@ -327,8 +327,8 @@ def test_exported_scene_rerenders_the_frames(tiny_dataset, frames, mi):
 
 
 def test_material_table_matches_generator(tiny_dataset, frames, mi):
-    from training.render.materials import fresnel_dielectric_f0, material_table
-    from training.render.renderer import to_mitsuba
+    from mcdenoise.training.render.materials import fresnel_dielectric_f0, material_table
+    from mcdenoise.training.render.renderer import to_mitsuba
 
     for i, seq in enumerate(SEQS):
         spec = _spec(i)
@@ -371,7 +371,7 @@ def test_each_sample_radiance_matches_its_own_features(mi):
     thin lens from a moving camera with motion blur: every sample whose position lies on an
     emitter has exactly that emitter's radiance and emissive = 1, every other hit has neither,
     and misses have zero radiance - so guides and radiance come from the same primary ray."""
-    from training.render.renderer import Sequence, SequenceRenderer
+    from mcdenoise.training.render.renderer import Sequence, SequenceRenderer
 
     l_sphere, l_rect = np.array([4.0, 2.0, 1.0]), np.array([0.5, 1.5, 3.0])
     scene = mi.load_dict({
@@ -421,7 +421,7 @@ def test_shape_ids_hold_for_meshes_mitsuba_merged(mi):
     meshes with an equivalent BSDF (there a rectangle and a twisted prism, both plain tungsten)
     into one mesh with an empty id whose bbox() covers only one of its parts.  The same here:
     a conductor panel and cube far apart, beside a diffuse floor."""
-    from training.render.renderer import Sequence, SequenceRenderer, shape_bounds
+    from mcdenoise.training.render.renderer import Sequence, SequenceRenderer, shape_bounds
 
     metal = {"type": "twosided", "bsdf": {"type": "conductor", "material": "W"}}
     tf = lambda m: mi.ScalarTransform4f(np.asarray(m, np.float64).tolist())
@@ -455,7 +455,7 @@ def test_shape_ids_hold_for_meshes_mitsuba_merged(mi):
 
 def test_coc_matches_the_rendered_blur_disc(mi):
     """A tiny emitter out of focus renders as a disc whose diameter is the coc feature."""
-    from training.render.renderer import Sequence, SequenceRenderer
+    from mcdenoise.training.render.renderer import Sequence, SequenceRenderer
 
     scene = mi.load_dict({"type": "scene", "dot": {
         "type": "sphere", "center": [0.0, 0.0, 2.0], "radius": 0.04,

@@ -11,11 +11,11 @@ import onnx
 import pytest
 import torch
 
-from runtime.denoiser import Denoiser, ModelFileError
-from runtime.frames import Frame, FrameError, read_frame, read_rgb, write_frame
-from runtime.inputs import frame_inputs
-from runtime.methods import shipped_models
-from training.bench import synthetic_frame
+from mcdenoise.runtime.denoiser import Denoiser, ModelFileError
+from mcdenoise.runtime.frames import Frame, FrameError, read_frame, read_rgb, write_frame
+from mcdenoise.runtime.inputs import frame_inputs
+from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training.harness import synthetic_frame
 
 SPEC = "wskpn-3"
 #: The driver's two kinds of temporal state: wskpn-3's colour is accumulated by the driver
@@ -25,8 +25,8 @@ TEMPORAL_SPECS = [SPEC, "nbg-2l-1g"]
 
 @pytest.fixture(scope="module", params=TEMPORAL_SPECS)
 def model_file(tmp_path_factory, request):
-    from export.onnx_export import export_model
-    from training.specs import build_model, load_spec
+    from mcdenoise.export.onnx_export import export_model
+    from mcdenoise.training.specs import build_model, load_spec
 
     torch.manual_seed(0)
     spec = load_spec(request.param)
@@ -58,7 +58,7 @@ def test_denoise_shapes_and_state(model_file):
 
 def test_driver_matches_training_unroll(model_file):
     """Same two frames through the runtime driver and through training.train.run_window."""
-    from training.train import run_window
+    from mcdenoise.training.train import run_window
 
     path, spec, model = model_file
     den = Denoiser.load(path, log=lambda m: None)
@@ -199,7 +199,7 @@ def test_stage_table_charges_each_conv_to_its_own_stage(path):
     with its activation runs as FusedConv (seen on AVX2 EPYC hosts, not on AVX-512 Xeons)."""
     import collections
 
-    from runtime import timing
+    from mcdenoise.runtime import timing
 
     den = Denoiser.load(path, profile=True, log=lambda m: None)
     stages = den.graph_stages
@@ -215,7 +215,7 @@ def test_stage_table_charges_each_conv_to_its_own_stage(path):
 def test_shipped_models_declare_what_runs_in_bands(path):
     """The shipped wskpn files declare their reconstruction's halo (largest kernel // 2) and
     load with it banded on the CPU; the nbg files declare none and run whole."""
-    import tomllib
+    from mcdenoise.training.specs import tomllib
 
     den = Denoiser.load(path, log=lambda m: None)
     spec = tomllib.loads(den.contract.spec_toml)
@@ -228,7 +228,7 @@ def test_shipped_models_declare_what_runs_in_bands(path):
 
 
 def test_denoise_command_on_a_sequence(model_file, tmp_path):
-    from runtime.cli import main
+    from mcdenoise.runtime.cli import main
 
     path, _, _ = model_file
     seq = tmp_path / "seq"
@@ -250,9 +250,9 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
     times only the frames at one resolution, saying how many it left out."""
     import json
 
-    from runtime.cli import main
-    from runtime.denoise import run
-    from runtime.metrics import psnr
+    from mcdenoise.runtime.cli import main
+    from mcdenoise.runtime.denoise import run
+    from mcdenoise.runtime.metrics import psnr
 
     path, _, _ = model_file
     sizes = {"a": [(24, 20), (24, 20), (24, 20), (30, 16)], "b": [(18, 22)]}
@@ -273,7 +273,7 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
         for t in range(len(wh)):
             outs.append(read_rgb(tmp_path / "out" / seq / f"frame_{t:04d}.exr"))
             refs.append(read_frame(tmp_path / seq / f"frame_{t:04d}.exr").reference)
-    from runtime.metrics import pixels as flat
+    from mcdenoise.runtime.metrics import pixels as flat
     assert res["psnr_db"] == pytest.approx(psnr(flat(outs), flat(refs)), rel=1e-9)
     # ... and each frame's pixels count once: not the mean of per-frame or per-size PSNRs.
     assert res["psnr_db"] != pytest.approx(np.mean([psnr(o, r) for o, r in zip(outs, refs)]), rel=1e-6)
@@ -286,8 +286,8 @@ def test_denoise_command_on_plain_images(model_file, tmp_path, capsys):
     """A plain colour image (the Open Image Denoise convention) with the albedo, normal and
     depth images a model needs gives the driver's image of the same frame; without them the
     command names the flags to give, in one line."""
-    from runtime.cli import main
-    from runtime.frames import write_rgb
+    from mcdenoise.runtime.cli import main
+    from mcdenoise.runtime.frames import write_rgb
 
     path, _, _ = model_file
     f = _frame(0)
@@ -309,7 +309,7 @@ def test_negative_model_output_is_clamped_and_counted(tmp_path):
     radiance, and says so."""
     from onnx import TensorProto, helper
 
-    from runtime.contract import Contract, contract_metadata
+    from mcdenoise.runtime.contract import Contract, contract_metadata
 
     io = {"layout": "NCHW", "transfer": "linear", "channels": 3}
     contract = Contract(version=1, spec_name="neg", model_type="test", spec_toml="", spec_hash="",
@@ -342,7 +342,7 @@ def test_nonfinite_albedo_does_not_black_out_the_pixel():
 
 
 def test_exposure_scale_values():
-    from runtime.inputs import AUTOEXPOSURE_KEY, exposure_scale
+    from mcdenoise.runtime.inputs import AUTOEXPOSURE_KEY, exposure_scale
 
     grey = np.full((1, 3, 32, 48), 0.5, np.float32)
     assert exposure_scale(grey).shape == (1, 1, 1, 1)
@@ -384,7 +384,7 @@ def test_autoexposure_makes_output_independent_of_radiance_units():
 def test_denoise_command_device_and_autoexposure_flags(tmp_path, capsys):
     import onnxruntime as ort
 
-    from runtime.cli import main as cli_main
+    from mcdenoise.runtime.cli import main as cli_main
 
     assert cli_main(["denoise", "--output", str(tmp_path / "a"), "--no-autoexposure", "--no-profile"]) == 0
     rc = cli_main(["denoise", "--output", str(tmp_path / "b"), "--device", "cuda"])
@@ -398,7 +398,7 @@ def test_denoise_command_device_and_autoexposure_flags(tmp_path, capsys):
 @pytest.mark.parametrize("bad,kind", [(np.nan, "nonfinite"), (np.inf, "nonfinite"), (-np.inf, "nonfinite"),
                                       (-0.5, "negative"), (1e9, "clamped")])
 def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
-    from runtime.inputs import MAX_RADIANCE, SanitizeReport, sanitize_array
+    from mcdenoise.runtime.inputs import MAX_RADIANCE, SanitizeReport, sanitize_array
 
     arr = np.random.default_rng(0).random((5, 7, 3), dtype=np.float32)
     arr[3, 4, 1] = bad
@@ -415,8 +415,8 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
     assert rep2.total == (1 if kind == "nonfinite" else 0)
     assert out2[3, 4, 1] == (0.0 if kind == "nonfinite" else np.float32(bad))
     # the driver's path: planes with the extrema taken block by block, in a tall frame
-    from runtime.frames import Frame
-    from runtime.inputs import frame_planes
+    from mcdenoise.runtime.frames import Frame
+    from mcdenoise.runtime.inputs import frame_planes
 
     tall = np.random.default_rng(1).random((153, 7, 3), dtype=np.float32)
     tall[140, 2, 0] = bad
@@ -432,7 +432,7 @@ def test_sanitize_catches_a_single_bad_value_of_each_kind(bad, kind):
 def test_scaling_while_converting_equals_sanitising_then_scaling(bad):
     """frame_planes(scale=...) (the driver's exposure, applied during the layout change) gives
     the values and report of sanitising the raw layer and multiplying after, to the bit."""
-    from runtime.inputs import MAX_RADIANCE, SanitizeReport, frame_planes
+    from mcdenoise.runtime.inputs import MAX_RADIANCE, SanitizeReport, frame_planes
 
     rng = np.random.default_rng(4)
     color = rng.random((37, 21, 3), dtype=np.float32) * 5
@@ -452,7 +452,7 @@ def test_scaling_while_converting_equals_sanitising_then_scaling(bad):
 
 
 def test_planes_round_trip_and_screen_normals_agree():
-    from runtime.inputs import from_planes, screen_normal_planes, screen_normals, to_planes
+    from mcdenoise.runtime.inputs import from_planes, screen_normal_planes, screen_normals, to_planes
 
     rng = np.random.default_rng(1)
     img = rng.random((137, 21, 3), dtype=np.float32)   # not a multiple of the transpose block
@@ -473,7 +473,7 @@ def test_planes_round_trip_and_screen_normals_agree():
 def test_from_planes_split_rows_give_the_same_image_and_extrema(monkeypatch, split_min):
     """The postprocess's layout change on two threads (rows split) or one: same image, and the
     extrema taken on the way see a NaN or a negative value in either half."""
-    import runtime.inputs as ri
+    import mcdenoise.runtime.inputs as ri
 
     monkeypatch.setattr(ri, "SPLIT_MIN_VALUES", split_min)
     rng = np.random.default_rng(3)
@@ -495,10 +495,10 @@ def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
     """One driver thread, two threads, two with the helper process (rows split across
     processes on shared memory, Linux), or three: the same images, to the bit, over a
     sequence with history, a NaN and a negative value."""
-    import runtime.temporal
-    from runtime import workers
+    import mcdenoise.runtime.temporal
+    from mcdenoise.runtime import workers
 
-    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
+    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
 
     path, _, _ = model_file
     outs = {}
@@ -521,12 +521,12 @@ def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
             np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
+@pytest.mark.skipif(not __import__("mcdenoise.runtime.workers").runtime.workers.SHARED_SUPPORTED, reason="Linux memfd")
 def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monkeypatch):
-    import runtime.temporal
-    from runtime import workers
+    import mcdenoise.runtime.temporal
+    from mcdenoise.runtime import workers
 
-    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
+    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
     monkeypatch.setattr(workers, "helper_problem", None)
     workers.stop_helper()
     path, _, _ = model_file
@@ -548,14 +548,14 @@ def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monk
     assert len([m for m in said if "helper process failed" in m]) == 1, said
 
 
-@pytest.mark.skipif(not __import__("runtime.workers").workers.SHARED_SUPPORTED, reason="Linux memfd")
+@pytest.mark.skipif(not __import__("mcdenoise.runtime.workers").runtime.workers.SHARED_SUPPORTED, reason="Linux memfd")
 def test_helper_process_across_resolution_changes_and_closed_segments(model_file, monkeypatch):
     """With the helper, a sequence whose resolution changes twice (new shared buffers, the old
     ones closed at once and unmapped in the helper) gives what one thread gives, to the bit."""
-    import runtime.temporal
-    from runtime import workers
+    import mcdenoise.runtime.temporal
+    from mcdenoise.runtime import workers
 
-    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
+    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
     monkeypatch.setattr(workers, "KEEP_FREE_BYTES", 0)
     monkeypatch.setattr(workers, "helper_problem", None)
     path, _, _ = model_file
@@ -575,7 +575,7 @@ def test_helper_process_across_resolution_changes_and_closed_segments(model_file
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
     """The driver reuses two sets of input planes; the previous frame's guides must reach the
     reprojection intact, also when the frame before failed half-way."""
-    import runtime.denoiser as rd
+    import mcdenoise.runtime.denoiser as rd
 
     seen = []
     real = rd.reproject
@@ -632,7 +632,7 @@ def test_last_stage_in_bands_gives_the_whole_graph_to_the_bit(model_file, monkey
     of rows on one-thread sessions: the same images to the bit as the whole graph, on one or
     two driver threads, over a sequence with history and a resolution change; its frames
     time both graph stages by wall clock, frames too small for bands run whole."""
-    from runtime import bands
+    from mcdenoise.runtime import bands
 
     path, spec, _ = model_file
     monkeypatch.setattr(bands, "MIN_PIXELS", 40 * 100)
@@ -665,8 +665,8 @@ def test_banded_stage_refuses_a_halo_too_small(model_file):
     the box filters read gives a different image, which the check reports."""
     from dataclasses import replace
 
-    from export.onnx_export import ExportError, check_bands
-    from runtime.contract import parse_contract
+    from mcdenoise.export.onnx_export import ExportError, check_bands
+    from mcdenoise.runtime.contract import parse_contract
 
     import onnxruntime as ort
 

@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from training.specs import (SPEC_DIR, FrozenDict, ModelSpec, SpecError, build_model, list_specs, load_spec,
+from mcdenoise.training.specs import (SPEC_DIR, FrozenDict, ModelSpec, SpecError, build_model, list_specs, load_spec,
                             parse_spec, register, spec_hash)
 
 SPECS = list_specs()

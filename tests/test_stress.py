@@ -9,11 +9,11 @@ import os
 import numpy as np
 import pytest
 
-from runtime.cli import main as cli_main
-from runtime.frames import SAMPLE_GROUPS, read_frame
-from runtime.methods import shipped_models
-from training import stress
-from training.render import procedural
+from mcdenoise.runtime.cli import main as cli_main
+from mcdenoise.runtime.frames import SAMPLE_GROUPS, read_frame
+from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training import report, stress, testsets
+from mcdenoise.training.render import procedural
 
 MODELS = [os.path.splitext(os.path.basename(p))[0] for p in shipped_models()]
 EXTRA = ["noisy", "svgf"]
@@ -34,7 +34,7 @@ def quick_run(tiny_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def frame(tiny_dataset):
-    from training.evaluate import sequences
+    from mcdenoise.training.testsets import sequences
 
     return read_frame(sequences(tiny_dataset)[0][1])
 
@@ -101,7 +101,7 @@ def test_exposure_scales_reference_and_is_undone_for_scoring(frame, quick_run):
 
 
 def test_fireflies_are_samples_at_500x_the_image_mean(frame):
-    clean = stress.at_spp(frame, 4)
+    clean = testsets.at_spp(frame, 4)
     f, where = stress.inject_fireflies(clean, np.random.default_rng(0))
     h, w = clean.size
     assert len(where) == max(1, round(stress.FIREFLY_DENSITY * h * w))
@@ -117,7 +117,7 @@ def test_fireflies_are_samples_at_500x_the_image_mean(frame):
 
 
 def test_nonfinite_injection(frame):
-    clean = stress.at_spp(frame, 4)
+    clean = testsets.at_spp(frame, 4)
     f, where = stress.inject_nonfinite(clean, np.random.default_rng(0))
     assert set(where) == {"nan-radiance", "inf-radiance", "nan-sample"}
     s, y, x = where["inf-radiance"].T
@@ -141,8 +141,8 @@ def test_failure_rule():
 def test_worst_window():
     m = np.zeros((20, 30))
     m[12:15, 3:6] = 1.0
-    assert stress.worst_window({(0, 0): np.zeros((20, 30)), (1, 2): m}, 4)[0] == (1, 2)
-    key, y, x = stress.worst_window({(1, 2): m}, 3)
+    assert report.worst_window({(0, 0): np.zeros((20, 30)), (1, 2): m}, 4)[0] == (1, 2)
+    key, y, x = report.worst_window({(1, 2): m}, 3)
     assert (y, x) == (12, 3)
 
 

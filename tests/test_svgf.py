@@ -4,10 +4,10 @@ rendered frames."""
 import numpy as np
 import pytest
 
-from runtime.frames import read_frame
-from runtime.methods import load_method
-from runtime.metrics import psnr
-from runtime.svgf import ALBEDO_EPS, SVGF
+from mcdenoise.runtime.frames import read_frame
+from mcdenoise.runtime.methods import load_method
+from mcdenoise.runtime.metrics import psnr
+from mcdenoise.runtime.svgf import ALBEDO_EPS, SVGF
 
 
 def _plane(h=64, w=64, depth=2.0):
@@ -160,7 +160,7 @@ def test_plain_colour_input_and_identity_modulation():
 
 
 def test_beats_noisy_input_on_rendered_frames(tiny_dataset):
-    from training.evaluate import at_spp, sequences
+    from mcdenoise.training.testsets import at_spp, sequences
 
     outs, noisy, refs = [], [], []
     s = SVGF()

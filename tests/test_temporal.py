@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.temporal import THREADED_BAND_ROWS as BAND, accumulate, reproject
+from mcdenoise.runtime.temporal import THREADED_BAND_ROWS as BAND, accumulate, reproject
 
 
 def _scene(h=6, w=8, shift=1.0):
@@ -75,7 +75,7 @@ def test_torch_matches_numpy_and_is_differentiable():
 
 def test_numpy_bands_match_torch_whole_frame():
     """numpy processes rows in bands (runtime.temporal.BAND_ROWS); band seams must not show."""
-    from runtime import temporal
+    from mcdenoise.runtime import temporal
 
     h, w = 2 * temporal.BAND_ROWS + 7, 9
     rng = np.random.default_rng(3)
@@ -115,7 +115,7 @@ def _torch_reproject(states, motion, cur, prev):
 def test_numpy_fast_path_matches_torch_for_every_guide_set_and_batch(keys):
     """The driver's numpy path (planar gathers, bands, zero-weight taps skipped) against the
     torch path on random guides, two states, a batch of 2, motion pointing off-screen too."""
-    from runtime import temporal
+    from mcdenoise.runtime import temporal
 
     rng = np.random.default_rng(len(keys))
     n, h, w = 2, temporal.BAND_ROWS + 5, 11

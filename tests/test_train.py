@@ -5,11 +5,11 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from export.onnx_export import export_run
-from runtime.cli import main
-from runtime.denoiser import Denoiser
-from training import runs
-from training.train import train
+from mcdenoise.export.onnx_export import export_run
+from mcdenoise.runtime.cli import main
+from mcdenoise.runtime.denoiser import Denoiser
+from mcdenoise.training import runs
+from mcdenoise.training.train import train
 
 KW = dict(crop=32, batch_size=2, quiet=True, val_every=0)
 
@@ -28,7 +28,7 @@ def test_resume_continues_exactly(tiny_dataset, tmp_path):
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
     # and training changed the weights at all
     torch.manual_seed(0)
-    from training.specs import build_model, load_spec
+    from mcdenoise.training.specs import build_model, load_spec
 
     fresh = build_model(load_spec("wskpn-3")).state_dict()
     assert any(not torch.equal(fresh[k], a[k]) for k in a if a[k].dtype.is_floating_point)

@@ -4,8 +4,8 @@ import os
 import numpy as np
 import pytest
 
-from runtime import workers
-from runtime.temporal import BAND_ROWS, reproject
+from mcdenoise.runtime import workers
+from mcdenoise.runtime.temporal import BAND_ROWS, reproject
 
 pytestmark = pytest.mark.skipif(not workers.SHARED_SUPPORTED, reason="shared memory needs Linux memfd")
 
@@ -27,9 +27,9 @@ def _fail(out, rows, value):
 def fresh_helper(monkeypatch):
     """A helper process of this test's own, and the module's failure note restored after;
     the reprojection hands small frames to it too."""
-    import runtime.temporal
+    import mcdenoise.runtime.temporal
 
-    monkeypatch.setattr(runtime.temporal, "HELPER_MIN_PIXELS", 0)
+    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
     monkeypatch.setattr(workers, "helper_problem", None)
     workers.stop_helper()
     yield

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from training.models import example_inputs
-from training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, RepVGGBlock, ReconstructionStage,
+from mcdenoise.training.models import example_inputs
+from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, RepVGGBlock, ReconstructionStage,
                                    WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, downsample2,
                                    fuse_kernels, fusion_factors, importance_weights, kernel_exponentials,
                                    pad_to_multiple, temporal_accumulate, upsample2)
-from training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
+from mcdenoise.training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
 
 WSKPN_SPECS = [n for n in list_specs() if load_spec(n).type == "wskpn"]
 _ACCUMULATE = """[[accumulate]]

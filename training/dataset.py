@@ -23,9 +23,9 @@ from typing import Sequence
 
 import numpy as np
 
-from runtime.frames import (MANIFEST, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
+from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
                             read_frame, read_meta)
-from runtime.inputs import SanitizeReport, frame_inputs
+from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs
 
 #: Channels holding screen-space (x right, y down) vector components, per item key.
 SCREEN_VECTORS = {"normal": (0, 1), "motion": (0, 1),

@@ -16,7 +16,8 @@ import os
 import shutil
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from mcdenoise.runtime import DATA_ROOT as ROOT
+
 SPEC_FILE = "spec.toml"
 CONFIG_FILE = "config.json"
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -48,11 +49,12 @@ def init_run(run_dir: str | os.PathLike, spec_path: str | os.PathLike, config: d
 def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
     """Rebuild ``(spec, model, checkpoint)`` from a run folder alone (eval mode, weights loaded).
 
-    Raises FileNotFoundError naming the missing file.
+    Raises FileNotFoundError naming the missing file, ValueError for a checkpoint that cannot
+    be read or does not fit the spec.
     """
     import torch
 
-    from training.specs import build_model, load_spec
+    from mcdenoise.training.specs import build_model, load_spec
 
     run = Path(run_dir)
     for name in (SPEC_FILE, CHECKPOINT_FILE):
@@ -60,8 +62,18 @@ def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
             raise FileNotFoundError(f"{run}: not a run folder (missing {name})")
     spec = load_spec(run / SPEC_FILE)
     model = build_model(spec)
-    ckpt = torch.load(run / CHECKPOINT_FILE, map_location=map_location, weights_only=False)
-    model.load_state_dict(ckpt["model"])
+    try:
+        ckpt = torch.load(run / CHECKPOINT_FILE, map_location=map_location, weights_only=False)
+    except Exception as e:  # truncated, not a torch file, written by an incompatible torch
+        raise ValueError(f"{run / CHECKPOINT_FILE}: not a readable checkpoint ({type(e).__name__}: "
+                         f"{' '.join(str(e).split())[:300]})") from None
+    if not isinstance(ckpt, dict) or "model" not in ckpt:
+        raise ValueError(f"{run / CHECKPOINT_FILE}: holds no model weights")
+    try:
+        model.load_state_dict(ckpt["model"])
+    except RuntimeError as e:  # the spec was edited after training, or files from two runs
+        first = next((ln.strip() for ln in str(e).splitlines()[1:] if ln.strip()), str(e))
+        raise ValueError(f"{run}: the checkpoint does not match {SPEC_FILE} ({first})") from None
     model.eval()
     return spec, model, ckpt
 

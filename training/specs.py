@@ -39,20 +39,23 @@ import hashlib
 import json
 import os
 import re
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser, from PyPI (a dependency there)
+    import tomli as tomllib
 import types
 import typing
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable, Iterator, Literal, Mapping
 
-from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
-from runtime.frames import PIXEL_LAYERS
-from runtime.transfer import TRANSFERS
+from mcdenoise.runtime import data_path
+from mcdenoise.runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from mcdenoise.runtime.frames import PIXEL_LAYERS
+from mcdenoise.runtime.transfer import TRANSFERS
 
-ROOT = Path(__file__).resolve().parent.parent
 #: Folder holding the shipped specs, one ``<name>.toml`` each.
-SPEC_DIR = ROOT / "models_spec"
+SPEC_DIR = data_path("models_spec")
 
 _NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 _IDENT_RE = re.compile(r"^[a-z_][a-z0-9_]*$")
@@ -493,7 +496,7 @@ def register(type_name: str):
 
 def registered_types() -> list[str]:
     """Registered builder types (imports the builders)."""
-    import training.models  # noqa: F401  (registers the builders)
+    import mcdenoise.training.models  # noqa: F401  (registers the builders)
 
     return sorted(_BUILDERS)
 
@@ -502,7 +505,7 @@ def build_model(spec: ModelSpec):
     """A freshly initialised ``nn.Module`` for ``spec`` (torch's global RNG seeds it), checked
     against the model interface: ``input_names``/``output_names`` as the spec implies, one
     child module per stage, ``state_channels`` matching ``[[state]]``."""
-    import training.models  # noqa: F401  (registers the builders; imports torch)
+    import mcdenoise.training.models  # noqa: F401  (registers the builders; imports torch)
 
     if spec.type not in _BUILDERS:
         raise SpecError(f"{spec.path or spec.name}: type {spec.type!r} has no registered builder; "

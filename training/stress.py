@@ -21,7 +21,7 @@ from the perturbed per-sample data with :func:`runtime.frames.pixel_means`):
   scales with its input loses nothing;
 * ``1spp``: the first sample only, against the ``--spp`` clean case.
 
-Cases from rendered sets (``mcdenoise render``, held-out scene seeds ``RENDER_SEED`` * 100000
+Cases from rendered sets (``mcdenoise render``, held-out scene seeds ``STRESS_SEED`` * 100000
 + i, cached under ``--render-dir``; same scenes as the ``base`` set, only the effect changes):
 
 * ``disocclusion``: the camera moves :data:`FAST_CAMERA` x as fast (vs ``base``);
@@ -37,22 +37,33 @@ with non-finite output values counted and set to 0 before scoring.  The failure 
 """
 from __future__ import annotations
 
-import csv
 import json
-import math
-import os
-import shlex
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-
-from runtime.frames import Frame, FrameError, pixel_means, read_frame, SAMPLE_GROUPS, write_png
-from runtime.metrics import psnr, relmse
-from runtime.transfer import reinhard_gamma
+from mcdenoise.runtime.frames import SAMPLE_GROUPS, Frame, FrameError
+from mcdenoise.training.report import (
+    compose,
+    display,
+    error_map,
+    stress_markdown,
+    worst_window,
+    write_stress_csv,
+)
+from mcdenoise.training.scoring import score
+from mcdenoise.training.testsets import (
+    APERTURE_SCALE,
+    FAST_CAMERA,
+    QUICK_LIMIT,
+    at_spp,
+    ensure,
+    read_sequences,
+    stress_set,
+    with_samples,
+)
 
 REPO = Path(__file__).resolve().parent.parent
 #: ANF Fig. 3: outlier samples "up to 500x the mean of the image".
@@ -66,51 +77,14 @@ EXPOSURES = {"dark": 1e-3, "bright": 1e3}
 FAIL_MARGIN_DB = 3.0
 #: stress.md lists losses of more than this many dB beyond the noisy input's that are not failures.
 NOTE_MARGIN_DB = 1.0
-#: Scene seeds of the rendered stress sets: RENDER_SEED * 100000 + i (training uses 1, test 2).
-RENDER_SEED = 5
-FAST_CAMERA = 4.0
-APERTURE_SCALE = 6.0
 #: Methods run by default besides the shipped ONNX models.
 DEFAULT_EXTRA = ("oidn-high", "svgf", "noisy")
 
-#: Rendered sets: name -> (render flags, what it is).
-RENDER_SETS: dict[str, tuple[tuple[str, ...], str]] = {
-    "base": (("--defocus", "off"), "pinhole, camera speed 1"),
-    "fast": (("--defocus", "off", "--camera-speed", f"{FAST_CAMERA:g}"), f"camera speed {FAST_CAMERA:g}"),
-    "defocus": (("--defocus", "on", "--aperture-scale", f"{APERTURE_SCALE:g}"),
-                f"thin lens, aperture x{APERTURE_SCALE:g}"),
-    "motion-blur": (("--defocus", "off", "--camera-speed", f"{FAST_CAMERA:g}", "--motion-blur", "on"),
-                    f"camera motion blur, camera speed {FAST_CAMERA:g}"),
-    "glossy": (("--defocus", "off", "--floor", "glossy"), "glossy silver floor"),
-}
-#: Size of the rendered sets: full run and --quick.
-FULL_RENDER = {"scenes": 3, "frames": 4, "size": "128x128", "spp": 4, "ref_spp": 256}
-QUICK_RENDER = {"scenes": 2, "frames": 2, "size": "64x64", "spp": 4, "ref_spp": 32}
-#: --quick keeps this many sequences x frames of the data set.
-QUICK_LIMIT = (2, 2)
 
 
 # ----------------------------------------------------------------------------------------------
 # Perturbations (pure functions of a frame with per-sample data and a random generator)
 # ----------------------------------------------------------------------------------------------
-
-def with_samples(frame: Frame, samples: np.ndarray) -> Frame:
-    """``frame`` with per-sample data ``samples`` (S, H, W, F) and its pixel layers recomputed
-    from them (:func:`runtime.frames.pixel_means`); motion, valid, reference and meta kept."""
-    px = pixel_means(samples)
-    return Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"], depth=px["depth"],
-                 position=px["position"], motion=None if frame.motion is None else frame.motion.copy(),
-                 valid=frame.valid, reference=frame.reference, samples=samples,
-                 meta=dict(frame.meta, spp=int(samples.shape[0])), path=frame.path)
-
-
-def at_spp(frame: Frame, n: int) -> Frame:
-    """The frame as if rendered with its first ``n`` stored samples (per-sample data kept)."""
-    if frame.samples is None:
-        raise FrameError(f"{frame.path}: no per-sample layers (stress needs them)")
-    if n > frame.spp:
-        raise FrameError(f"{frame.path}: holds {frame.spp} samples per pixel, {n} requested")
-    return with_samples(frame, frame.samples[:n].copy())
 
 
 def _pick(rng: np.random.Generator, frame: Frame, density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -213,14 +187,6 @@ def _keys(seqs):
     return [[(i, t) for t in range(len(s))] for i, s in enumerate(seqs)]
 
 
-def load_set(root: str, limit: tuple[int, int] | None = None) -> list[list[Frame]]:
-    """Frames of every sequence under ``root`` (at most ``limit`` = (sequences, frames))."""
-    from training.evaluate import sequences
-
-    seqs = sequences(root)
-    if limit:
-        seqs = [s[:limit[1]] for s in seqs[:limit[0]]]
-    return [[read_frame(p) for p in s] for s in seqs]
 
 
 def _strip(seqs):
@@ -288,67 +254,6 @@ RENDERED_CASES = (  # case, set, clean counterpart set, description
 # Rendering the stress sets
 # ----------------------------------------------------------------------------------------------
 
-def render_args(name: str, quick: bool) -> list[str]:
-    """``mcdenoise render`` arguments (without --out) of a stress set."""
-    cfg = QUICK_RENDER if quick else FULL_RENDER
-    return ["--scenes", str(cfg["scenes"]), "--frames", str(cfg["frames"]), "--size", cfg["size"],
-            "--spp", str(cfg["spp"]), "--ref-spp", str(cfg["ref_spp"]), "--seed", str(RENDER_SEED),
-            "--workers", "1", *RENDER_SETS[name][0]]
-
-
-def _set_complete(folder: Path, name: str, quick: bool) -> bool:
-    """The folder's manifest says it holds this set (same settings, every sequence): reuse it."""
-    from runtime.frames import MANIFEST
-
-    try:
-        man = json.loads((folder / MANIFEST).read_text())
-    except (OSError, json.JSONDecodeError):
-        return False
-    cfg = QUICK_RENDER if quick else FULL_RENDER
-    flags = RENDER_SETS[name][0]
-    want = {"spp": cfg["spp"], "ref_spp": cfg["ref_spp"], "seed": RENDER_SEED, "scenes": cfg["scenes"],
-            "frames": cfg["frames"], "size": [int(v) for v in cfg["size"].split("x")],
-            "camera_speed": float(flags[flags.index("--camera-speed") + 1]) if "--camera-speed" in flags else 1.0,
-            "defocus_probability": 1.0 if flags[flags.index("--defocus") + 1] == "on" else 0.0,
-            "motion_blur_probability": 1.0 if "--motion-blur" in flags else 0.0,
-            "aperture_scale": float(flags[flags.index("--aperture-scale") + 1]) if "--aperture-scale" in flags else None,
-            "floor": flags[flags.index("--floor") + 1] if "--floor" in flags else None}
-    got = man.get("settings", {})
-    if any(got.get(k) != v for k, v in want.items()):
-        return False
-    seqs = man.get("sequences", [])
-    return len(seqs) == cfg["scenes"] and all(
-        len(list((folder / e["folder"]).glob("frame_*.exr"))) == cfg["frames"] for e in seqs)
-
-
-def ensure_set(render_dir: str, name: str, quick: bool, render: bool = True, log=print) -> tuple[str | None, dict]:
-    """Folder of stress set ``name`` (rendered by ``mcdenoise render`` in a subprocess if missing,
-    unless ``render`` is False: then None).  Returns (folder, info: command, render seconds)."""
-    folder = Path(render_dir) / (("quick-" if quick else "") + name)
-    args = render_args(name, quick)
-    info = {"command": "mcdenoise render --out " + str(folder) + " " + " ".join(args)}
-    if not _set_complete(folder, name, quick):
-        if not render:
-            return None, info
-        cmd = [sys.executable, "-m", "runtime.cli", "render", "--out", str(folder), *args]
-        log(f"stress: rendering set {name!r}: {info['command']}")
-        start = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
-        if proc.returncode != 0:
-            tail = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
-            raise RuntimeError(f"rendering stress set {name!r} failed: {tail}")
-        info["wall_seconds"] = round(time.perf_counter() - start, 1)
-    from runtime.frames import MANIFEST
-
-    man = json.loads((folder / MANIFEST).read_text())
-    secs = [e.get("render_seconds", 0.0) for e in man.get("sequences", [])]
-    frames = sum(e.get("frames", 0) for e in man.get("sequences", []))
-    info.update(render_seconds=round(sum(secs), 1), frames=frames,
-                seconds_per_frame=round(sum(secs) / max(frames, 1), 2),
-                seeds=[e.get("scene_seed") for e in man.get("sequences", [])],
-                variant=(man.get("settings") or {}).get("variant"))
-    return str(folder), info
-
 
 # ----------------------------------------------------------------------------------------------
 # Running and scoring
@@ -403,11 +308,11 @@ def _inputs(run: Run) -> dict:
     return {k: fr.color for fr, k in run.frames() if k is not None}
 
 
-def score(outputs: dict, refs: dict, keys: list, scale: float = 1.0) -> dict:
-    """PSNR (ANF Eq. 14) and relMSE over the frames ``keys``; non-finite output -> 0 first."""
-    o = np.stack([np.nan_to_num(outputs[k], nan=0.0, posinf=0.0, neginf=0.0) for k in keys]).astype(np.float64) * scale
-    r = np.stack([refs[k] for k in keys]).astype(np.float64) * scale
-    return {"psnr": psnr(o, r), "relmse": relmse(o, r)}
+def case_score(outputs: dict, refs: dict, keys: list, scale: float = 1.0) -> dict:
+    """PSNR (ANF Eq. 14) and relMSE (:func:`training.scoring.score`) over the frames ``keys``
+    of a run, non-finite output set to 0 first, outputs and references times ``scale``."""
+    outs = [np.nan_to_num(outputs[k], nan=0.0, posinf=0.0, neginf=0.0) * np.float32(scale) for k in keys]
+    return score(outs, [refs[k] * np.float32(scale) for k in keys], [len(keys)], which=("psnr", "relmse"))
 
 
 def judge(method: str, row: dict, noisy: dict | None) -> str | None:
@@ -435,69 +340,10 @@ def judge(method: str, row: dict, noisy: dict | None) -> str | None:
 # Crops
 # ----------------------------------------------------------------------------------------------
 
-def error_map(out: np.ndarray, ref: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Per-pixel squared error of tonemapped radiance (ANF Eq. 15), mean over channels (H, W)."""
-    o = np.nan_to_num(out.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
-    d = reinhard_gamma(o) - reinhard_gamma(ref.astype(np.float64) * scale)
-    return (d * d).mean(axis=-1)
 
-
-def worst_window(maps: dict, size: int) -> tuple:
-    """(key, y, x) of the size x size window with the largest sum over ``maps`` {key: (H, W)}."""
-    best = (-math.inf, None, 0, 0)
-    for k, m in maps.items():
-        h, w = m.shape
-        s = min(size, h, w)
-        c = np.zeros((h + 1, w + 1))
-        c[1:, 1:] = m.cumsum(0).cumsum(1)
-        win = c[s:, s:] - c[:-s, s:] - c[s:, :-s] + c[:-s, :-s]
-        y, x = np.unravel_index(int(np.argmax(win)), win.shape)
-        if win[y, x] > best[0]:
-            best = (float(win[y, x]), k, int(y), int(x))
-    return best[1], best[2], best[3]
-
-
-def _display(img: np.ndarray | None, scale: float, shape) -> np.ndarray:
-    """Tonemapped [0, 1] panel; non-finite pixels magenta, a missing output grey."""
-    if img is None:
-        return np.full(shape, 0.5)
-    img = img.astype(np.float64) * scale
-    bad = ~np.isfinite(img).all(axis=-1)
-    out = reinhard_gamma(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0))
-    out[bad] = (1.0, 0.0, 1.0)
-    return out
-
-
-def compose(rows: list[tuple[str, list]], labels: list[str], path: str, zoom: int) -> None:
-    """Write a PNG grid: one row per (row label, [panel (h, w, 3) in [0, 1]]), columns labelled.
-    Panels are enlarged ``zoom`` x (nearest).  Labels need matplotlib; without it, none."""
-    ph, pw = rows[0][1][0].shape[:2]
-    ph, pw = ph * zoom, pw * zoom
-    gap, top, left = 2, 14, 72
-    width = left + len(labels) * (pw + gap)
-    height = top + len(rows) * (ph + gap)
-    canvas = np.ones((height, width, 3))
-    for r, (_, panels) in enumerate(rows):
-        for c, p in enumerate(panels):
-            y, x = top + r * (ph + gap), left + c * (pw + gap)
-            canvas[y:y + ph, x:x + pw] = np.repeat(np.repeat(p, zoom, 0), zoom, 1)
-    try:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        write_png(path, canvas)
-        return
-    fig = Figure(figsize=(width / 100, height / 100), dpi=100)
-    FigureCanvasAgg(fig)
-    fig.figimage(canvas, 0, 0, origin="upper")
-    for c, lab in enumerate(labels):
-        fig.text((left + c * (pw + gap) + pw / 2) / width, 1 - 2 / height, lab, ha="center", va="top", fontsize=7)
-    for r, (lab, _) in enumerate(rows):
-        fig.text(2 / width, 1 - (top + r * (ph + gap) + ph / 2) / height, lab, ha="left", va="center", fontsize=7)
-    fig.canvas.draw()
-    img = np.asarray(fig.canvas.buffer_rgba())[..., :3]
-    write_png(path, img.astype(np.float64) / 255.0)
-
+# ----------------------------------------------------------------------------------------------
+# The suite
+# ----------------------------------------------------------------------------------------------
 
 def crop_case(case: Case, runs: dict, results: dict, table: dict, methods: list[str], path: str,
               size: int, zoom: int) -> dict | None:
@@ -528,12 +374,12 @@ def crop_case(case: Case, runs: dict, results: dict, table: dict, methods: list[
     sl = (slice(y, y + s), slice(x, x + s))
 
     def row(r: Run, res_run: str) -> list:
-        panels = [_display(_inputs(r)[key][sl], r.scale, (s, s, 3))]
+        panels = [display(_inputs(r)[key][sl], r.scale, (s, s, 3))]
         for m in methods:
             res = results.get((res_run, m))
             out = None if res is None or res.error else res.outputs.get(key)
-            panels.append(_display(None if out is None else out[sl], r.scale, (s, s, 3)))
-        panels.append(_display(_refs(r)[key][sl], r.scale, (s, s, 3)))
+            panels.append(display(None if out is None else out[sl], r.scale, (s, s, 3)))
+        panels.append(display(_refs(r)[key][sl], r.scale, (s, s, 3)))
         return panels
 
     rows = [(case.name, row(run, case.run))]
@@ -543,12 +389,8 @@ def crop_case(case: Case, runs: dict, results: dict, table: dict, methods: list[
     return {"method": worst, "frame": list(key), "y": y, "x": x, "size": s}
 
 
-# ----------------------------------------------------------------------------------------------
-# The suite
-# ----------------------------------------------------------------------------------------------
-
 def default_methods() -> list[str]:
-    from runtime.methods import shipped_models
+    from mcdenoise.runtime.methods import shipped_models
 
     return [*shipped_models(), *DEFAULT_EXTRA]
 
@@ -558,19 +400,20 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
            threads: int = 0, seed: int = 0, command: str | None = None, log=print) -> dict:
     """Run the suite and write ``stress.md``, ``stress.csv`` and ``stress/<case>.png`` into
     ``out``.  Returns {"table": {(case, method): row}, "cases": [...], "methods": [...], ...}."""
-    from runtime.methods import load_method
+    from mcdenoise.runtime.methods import load_method
 
     methods = list(methods) if methods else default_methods()
     started = time.perf_counter()
     sets: dict[str, dict] = {}
     limit = QUICK_LIMIT if quick else None
     if data is None:
-        folder, info = ensure_set(render_dir, "base", quick, render, log)
+        folder, info = ensure(stress_set("base", render_dir, quick), render_missing=render,
+                              what="stress set 'base'", log=log)
         if folder is None:
             raise FrameError(f"no --data and the base stress set is not rendered in {render_dir} (--no-render)")
         sets["base"] = {**info, "folder": folder}
         data = folder
-    data_seqs = load_set(data, limit=limit)
+    data_seqs = read_sequences(data, limit=limit)
     runs, cases = perturbation_runs(data_seqs, spp, seed)
     del data_seqs
     # rendered sets; the base set is the clean run when it is the data set
@@ -580,12 +423,13 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
         for name in (set_name, clean_name):
             if alias.get(name, name) in runs:
                 continue
-            folder, info = ensure_set(render_dir, name, quick, render, log)
+            folder, info = ensure(stress_set(name, render_dir, quick), render_missing=render,
+                                  what=f"stress set {name!r}", log=log)
             sets[name] = {**info, "folder": folder}
             if folder is None:
                 missing = True
                 continue
-            seqs = _strip([[at_spp(f, spp) for f in s] for s in load_set(folder, limit=limit)])
+            seqs = _strip([[at_spp(f, spp) for f in s] for s in read_sequences(folder, limit=limit)])
             runs[name] = Run(name, seqs, _keys(seqs))
         cases.append(Case(case_name, what, alias.get(set_name, set_name), alias.get(clean_name, clean_name),
                           False, skipped=f"set not rendered in {render_dir} (--no-render)" if missing else None,
@@ -629,8 +473,8 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
                    "psnr_case": None, "psnr_clean": None, "delta_db": None,
                    "relmse_case": None, "relmse_clean": None}
             if not row["error"]:
-                a = score(res.outputs, refs, keys, run.scale)
-                b = score(cres.outputs, crefs, keys, clean.scale)
+                a = case_score(res.outputs, refs, keys, run.scale)
+                b = case_score(cres.outputs, crefs, keys, clean.scale)
                 row.update(psnr_case=a["psnr"], psnr_clean=b["psnr"], delta_db=a["psnr"] - b["psnr"],
                            relmse_case=a["relmse"], relmse_clean=b["relmse"])
             table[(case.name, name)] = row
@@ -641,7 +485,7 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
     keys = [k for _, k in runs["clean"].frames() if k is not None]
     for name in names:
         res = results[("clean", name)]
-        clean_rows[name] = None if res.error else score(res.outputs, _refs(runs["clean"]), keys)
+        clean_rows[name] = None if res.error else case_score(res.outputs, _refs(runs["clean"]), keys)
 
     # crops and files
     outp = Path(out)
@@ -658,194 +502,24 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
             crops[case.name] = {**info, "path": str(path)}
     summary = {"table": table, "cases": cases, "methods": names, "clean": clean_rows, "sets": sets,
                "crops": crops, "data": str(data), "spp": spp, "quick": quick, "seed": seed,
-               "command": command or "mcdenoise stress", "clean_frames": len(keys), "seconds": round(time.perf_counter() - started, 1),
+               "command": command or "mcdenoise stress",
+               "fail_margin_db": FAIL_MARGIN_DB, "note_margin_db": NOTE_MARGIN_DB, "clean_frames": len(keys), "seconds": round(time.perf_counter() - started, 1),
                "frames": {c.name: len([k for _, k in runs[c.run].frames() if k is not None])
                           for c in cases if not c.skipped}}
-    write_csv(summary, outp / "stress.csv")
-    (outp / "stress.md").write_text(markdown(summary, outp))
+    write_stress_csv(summary, outp / "stress.csv")
+    (outp / "stress.md").write_text(stress_markdown(summary, outp))
     log(f"stress: wrote {outp / 'stress.md'}, {outp / 'stress.csv'} and {len(crops)} crop(s) in {crop_dir} "
         f"({summary['seconds']} s)")
     return summary
 
 
-CSV_FIELDS = ("case", "method", "clean_counterpart", "psnr_clean", "psnr_case", "delta_db",
-              "relmse_clean", "relmse_case", "nonfinite_output_values", "driver_resets", "error",
-              "failed", "skipped")
-
-
-def write_csv(summary: dict, path: Path) -> None:
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(CSV_FIELDS)
-        for case in summary["cases"]:
-            for m in summary["methods"]:
-                r = summary["table"][(case.name, m)]
-                f = lambda v: "" if v is None else (f"{v:.4f}" if isinstance(v, float) else v)
-                w.writerow([case.name, m, case.vs or case.clean, f(r.get("psnr_clean")), f(r.get("psnr_case")),
-                            f(r.get("delta_db")), f(r.get("relmse_clean")), f(r.get("relmse_case")),
-                            f(r.get("nonfinite")), f(r.get("resets")), r.get("error") or "",
-                            r.get("failed") or "", r.get("skipped") or ""])
-
-
-def _cell(r: dict) -> str:
-    if r.get("skipped"):
-        return "skipped"
-    if r.get("error"):
-        return "**crash**"
-    txt = f"{r['delta_db']:+.2f}"
-    if r.get("nonfinite"):
-        txt += " NaN"
-    return f"**{txt} fail**" if r.get("failed") else txt
-
-
-def markdown(summary: dict, out: Path) -> str:
-    from runtime.timing import cpu_name
-
-    names, table = summary["methods"], summary["table"]
-    L = ["# Stress test", "",
-         "What each method loses on hard input, against the same method on the clean counterpart "
-         "(`mcdenoise stress`, `training/stress.py`, issue #5).", "",
-         "Command:", "", "```", summary["command"], "```", "",
-         f"Machine: {cpu_name()}; {summary['seconds']} s for the whole run. Clean case: {summary['spp']} spp "
-         f"from `{_rel(summary['data'])}`" + (" (--quick: 2 sequences x 2 frames)" if summary["quick"] else "") + ".",
-         "",
-         "## PSNR change (dB) against the clean counterpart", "",
-         "PSNR is ANF Eq. 14 (tonemapped, over all scored frames of the case); non-finite output "
-         "values are counted and scored as 0. `fail` follows the rule below; `NaN`: the output had "
-         "non-finite values; the noisy input is the yardstick and never judged.", "",
-         "| case | vs | frames | " + " | ".join(names) + " |",
-         "|---|---|---:|" + "---:|" * len(names)]
-    clean = summary["clean"]
-    L.append(f"| *clean, absolute dB* | - | {summary['clean_frames']} | "
-             + " | ".join("-" if clean[m] is None else f"{clean[m]['psnr']:.2f}" for m in names) + " |")
-    for case in summary["cases"]:
-        L.append(f"| {case.name} | {case.vs or case.clean} | {summary['frames'].get(case.name, '-')} | "
-                 + " | ".join(_cell(table[(case.name, m)]) for m in names) + " |")
-    L += ["", "relMSE on the case / relMSE on the clean counterpart (1: no change):", "",
-          "| case | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
-    for case in summary["cases"]:
-        if case.skipped:
-            continue
-        cells = []
-        for m in names:
-            r = table[(case.name, m)]
-            cells.append("-" if r.get("error") or not r.get("relmse_clean") else f"{r['relmse_case'] / r['relmse_clean']:.2f}")
-        L.append(f"| {case.name} | " + " | ".join(cells) + " |")
-    L += ["", "## Cases", "", "| case | what | clean counterpart | worst region (crop) |", "|---|---|---|---|"]
-    for case in summary["cases"]:
-        c = summary["crops"].get(case.name)
-        crop = "-" if case.skipped else "none"
-        if c:
-            crop = (f"[{Path(c['path']).name}]({_rel(c['path'], out)}) ({c['method']}, sequence {c['frame'][0]} "
-                    f"frame {c['frame'][1]}, x {c['x']} y {c['y']}, {c['size']} px)")
-        L.append(f"| {case.name} | {case.what}{' (skipped: ' + case.skipped + ')' if case.skipped else ''} | "
-                 f"{case.vs or case.clean} | {crop} |")
-    L += ["", "Crops: columns are the input, each method and the reference, tonemapped (ANF Eq. 15) "
-          "after undoing the exposure; non-finite pixels are magenta. The window (size above, "
-          "enlarged with nearest neighbours) is where the method that lost the most beyond the noisy input "
-          "has the largest error increase over its own clean output (perturbation cases, second "
-          "row: the clean counterpart) or the largest error (rendered cases).", "",
-          "## Failure rule", "",
-          f"A method fails a case when it crashes, when any output value is non-finite, when its PSNR on "
-          f"the case is below the noisy input's, or when its PSNR change is more than {FAIL_MARGIN_DB:g} dB "
-          f"below the noisy input's own change (`training/stress.py`, `judge`).", ""]
-    fails = [(c.name, m, table[(c.name, m)]["failed"]) for c in summary["cases"] for m in names
-             if table[(c.name, m)].get("failed")]
-    L += ["## Failures", ""]
-    if fails:
-        for m in names:
-            mine = [(c, why) for c, mm, why in fails if mm == m]
-            if mine:
-                L.append(f"- **{m}**: " + "; ".join(f"{c} ({why})" for c, why in mine))
-    else:
-        L.append("None.")
-    notes = []
-    for c in summary["cases"]:
-        nd = table.get((c.name, "noisy"), {}).get("delta_db")
-        for m in names:
-            r = table[(c.name, m)]
-            if m == "noisy" or r.get("failed") or r.get("delta_db") is None or nd is None:
-                continue
-            if r["delta_db"] - nd < -NOTE_MARGIN_DB:
-                notes.append(f"{m} on {c.name} ({r['delta_db'] - nd:+.1f} dB)")
-    if notes:
-        L += ["", f"Losses of more than {NOTE_MARGIN_DB:g} dB beyond the noisy input's that are not failures: "
-              + "; ".join(notes) + "."]
-    errors = {(c.name, m): table[(c.name, m)]["error"] for c in summary["cases"] for m in names
-              if table[(c.name, m)].get("error")}
-    if errors:
-        L += ["", "Errors:", ""]
-        seen = set()
-        for (c, m), e in errors.items():
-            if (m, e) in seen:
-                continue
-            seen.add((m, e))
-            L.append(f"- {m} ({c}{' and others' if sum(1 for (cc, mm), ee in errors.items() if mm == m and ee == e) > 1 else ''}): `{e}`")
-    L += ["", "## Absolute scores", "", "| case | method | PSNR clean | PSNR case | relMSE clean | relMSE case | driver resets |",
-          "|---|---|---:|---:|---:|---:|---:|"]
-    for case in summary["cases"]:
-        for m in names:
-            r = table[(case.name, m)]
-            if r.get("skipped") or r.get("error"):
-                continue
-            L.append(f"| {case.name} | {m} | {r['psnr_clean']:.2f} | {r['psnr_case']:.2f} | "
-                     f"{r['relmse_clean']:.4g} | {r['relmse_case']:.4g} | {'-' if r.get('resets') is None else r['resets']} |")
-    L += ["", "## Data", ""]
-    if summary["sets"]:
-        L += ["| set | folder | scene seeds | frames | render s (s/frame) | command |", "|---|---|---|---:|---:|---|"]
-        for name, info in summary["sets"].items():
-            if not info.get("folder"):
-                L.append(f"| {name} | not rendered | - | - | - | `{info['command']}` |")
-                continue
-            L.append(f"| {name} | `{_rel(info['folder'])}` | {', '.join(map(str, info.get('seeds', [])))} | "
-                     f"{info.get('frames', '-')} | {info.get('render_seconds', '-')} ({info.get('seconds_per_frame', '-')}) | "
-                     f"`{_rel_cmd(info['command'])}` |")
-        L.append("")
-    else:
-        L += ["No rendered sets (--data only).", ""]
-    L += [f"Perturbation seeds: numpy `default_rng([{summary['seed']}, case, sequence, frame])`. "
-          "Render seconds are the renderer's own (manifest), on this machine.", ""]
-    code = _code_version()
-    if code:
-        L += [f"Code: {code}.", ""]
-    return "\n".join(L)
-
-
-def _code_version() -> str | None:
-    """"commit abc1234" plus the runtime/method files that differ from it, or None without git."""
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                              text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "runtime", "models", "training/stress.py"],
-                               cwd=REPO, capture_output=True, text=True, timeout=10).stdout.split("\n")
-    except (OSError, subprocess.SubprocessError):
-        return None
-    if not head:
-        return None
-    changed = sorted(line[3:] for line in dirty if line.strip())
-    return f"commit {head}" + (f" with uncommitted {', '.join(changed)}" if changed else "")
-
-
-def _rel(path: str, base: Path | None = None) -> str:
-    try:
-        p = Path(path).resolve()
-        return os.path.relpath(p, (base or REPO).resolve()) if base else str(p.relative_to(REPO))
-    except ValueError:
-        return str(path)
-
-
-def _rel_cmd(cmd: str) -> str:
-    return cmd.replace(str(REPO) + os.sep, "")
-
-
 def add_arguments(p) -> None:
-    from runtime.args import add_threads
+    from mcdenoise.runtime.args import add_data, add_seed, add_threads
 
     p.add_argument("methods", nargs="*",
                    help="ONNX files or oidn-high, oidn-fast, svgf, noisy (default: every models/*.onnx, "
                         + ", ".join(DEFAULT_EXTRA) + ")")
-    p.add_argument("--data", default=None, metavar="DIR",
-                   help="sequences with per-sample data for the perturbation cases (default: the rendered base set)")
+    add_data(p, required=False, default="the rendered base stress set; its per-sample data makes the perturbation cases")
     p.add_argument("--render-dir", default="data/stress", metavar="DIR",
                    help="where the rendered stress sets are cached (default data/stress)")
     p.add_argument("--out", default="docs/results", metavar="DIR", help="where stress.md, stress.csv and stress/ go")
@@ -853,30 +527,18 @@ def add_arguments(p) -> None:
                    help=f"tiny run: {QUICK_LIMIT[0]} sequences x {QUICK_LIMIT[1]} frames, tiny rendered sets")
     p.add_argument("--spp", type=int, default=4, help="samples per pixel of the clean case (default 4)")
     p.add_argument("--no-render", action="store_true", help="never render: cases whose set is missing are skipped")
-    p.add_argument("--seed", type=int, default=0, help="seed of the perturbations (default 0)")
+    add_seed(p, "where fireflies and NaN/Inf samples are injected")
     add_threads(p)
 
 
-def command_line(args) -> str:
-    parts = ["mcdenoise", "stress", *args.methods]
-    if args.data:
-        parts += ["--data", args.data]
-    parts += ["--render-dir", args.render_dir, "--out", args.out, "--spp", str(args.spp)]
-    if args.quick:
-        parts.append("--quick")
-    if args.no_render:
-        parts.append("--no-render")
-    if args.seed:
-        parts += ["--seed", str(args.seed)]
-    if args.threads:
-        parts += ["--threads", str(args.threads)]
-    return " ".join(shlex.quote(x) for x in parts)
 
 
 def main(args) -> int:
+    from mcdenoise.runtime.cli import command_line
+
     if args.spp < 1:
         raise ValueError(f"--spp must be >= 1, got {args.spp}")
     stress(args.methods or None, args.data, args.render_dir, args.out, args.quick, args.spp,
-           not args.no_render, args.threads, args.seed, command_line(args),
+           not args.no_render, args.threads, args.seed, command_line("stress", args),
            log=lambda m: print(m, file=sys.stderr))
     return 0

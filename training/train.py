@@ -21,13 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.args import add_data, add_seed, add_threads
-from runtime.contract import OUTPUT
-from runtime.inputs import exposure_scale
-from runtime.metrics import psnr, relmse, smape
-from runtime.temporal import reproject
-from runtime.transfer import gamma
-from training import runs
+from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
+from mcdenoise.runtime.contract import OUTPUT
+from mcdenoise.runtime.inputs import exposure_scale
+from mcdenoise.runtime.metrics import psnr, relmse, smape
+from mcdenoise.runtime.temporal import reproject
+from mcdenoise.runtime.transfer import gamma
+from mcdenoise.training import runs
+
+
+class TrainingDiverged(CommandError, FloatingPointError):
+    """The loss became NaN or infinite; the run folder keeps its last checkpoint."""
 
 
 def _l1_gamma(pred, ref):
@@ -117,7 +121,7 @@ def evaluate(model, dataset, state_channels: dict, batch_size: int = 4, accumula
     SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
     import torch
 
-    from training.dataset import collate
+    from mcdenoise.training.dataset import collate
 
     model.eval()
     preds, refs, noisy = [], [], []
@@ -146,7 +150,7 @@ def add_arguments(p):
     p.add_argument("--val-fraction", type=float, default=0.2,
                    help="fraction of scene seeds held out for validation")
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: each epoch)")
-    add_seed(p)
+    add_seed(p, "initial weights, crops, sample subsets, symmetries and the order of examples")
     add_threads(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -158,8 +162,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     """Train and return the final metrics row.  See module docstring."""
     import torch
 
-    from training.dataset import SequenceDataset, collate
-    from training.specs import build_model, load_spec
+    from mcdenoise.training.dataset import SequenceDataset, collate
+    from mcdenoise.training.specs import build_model, load_spec
 
     if threads:
         torch.set_num_threads(threads)
@@ -239,7 +243,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             outs = run_window(model, batch, state_channels, accumulate=accumulate)
             loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
             if not torch.isfinite(loss):
-                raise FloatingPointError(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept)")
+                raise TrainingDiverged(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept; "
+                                       "a lower learning rate or the data's NaN report may help)")
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -46,9 +46,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.contract import HISTORY, STATE_INPUT_PREFIX
-from training.models import nbg  # noqa: F401  (registers type "nbg")
-from training.models import wskpn  # noqa: F401  (registers type "wskpn")
+from mcdenoise.runtime.contract import HISTORY, STATE_INPUT_PREFIX
+from mcdenoise.training.models import nbg  # noqa: F401  (registers type "nbg")
+from mcdenoise.training.models import wskpn  # noqa: F401  (registers type "wskpn")
 
 
 def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0) -> dict[str, np.ndarray]:

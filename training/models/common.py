@@ -17,10 +17,10 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
-from runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
-from runtime.temporal import accumulate as temporal_accumulate  # noqa: F401  (the driver blends too)
-from runtime.transfer import get as get_transfer
+from mcdenoise.runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from mcdenoise.runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
+from mcdenoise.runtime.temporal import accumulate as temporal_accumulate  # noqa: F401  (the driver blends too)
+from mcdenoise.runtime.transfer import get as get_transfer
 
 #: State name of the accumulated-radiance temporal state (WSKPN §4.1, NBG §4.6).
 ACCUM = "accum"
@@ -80,7 +80,7 @@ def bind_inputs(model: nn.Module, inputs) -> dict:
 def check_accum_state(spec, temporal: bool, where: str, type_name: str) -> None:
     """SpecError unless ``spec``'s [[state]] is exactly the accumulated radiance when it has a
     temporal stage, and empty otherwise."""
-    from training.specs import SpecError
+    from mcdenoise.training.specs import SpecError
 
     state = [(s.name, s.channels) for s in spec.state]
     want = [(ACCUM, 3)] if temporal else []
@@ -94,7 +94,7 @@ def check_accum_model_spec(spec, type_name: str, layers, stages) -> bool:
     ``[inputs].layers`` are ``layers`` (any order), ``stages`` are ``stages`` with an optional
     leading "temporal", and ``[[state]]`` fits (:func:`check_accum_state`).  Raises SpecError
     naming the spec; returns whether the model has the temporal stage."""
-    from training.specs import SpecError
+    from mcdenoise.training.specs import SpecError
 
     where = spec.path or spec.name
     if sorted(spec.inputs.layers) != sorted(layers):

@@ -55,11 +55,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from runtime.contract import HISTORY, state_input_name
-from runtime.transfer import luminance as _luminance
-from training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
+from mcdenoise.runtime.contract import HISTORY, state_input_name
+from mcdenoise.runtime.transfer import luminance as _luminance
+from mcdenoise.training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
                                     check_accum_model_spec, demodulate, remodulate)
-from training.specs import ModelSpec, register
+from mcdenoise.training.specs import ModelSpec, register
 
 #: Range of the guide in grid units before division by η_d (Eq. 8: "d ... which we set to 255").
 GUIDE_RANGE = 255.0

@@ -34,11 +34,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from runtime.contract import HISTORY, state_input_name
-from training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
+from mcdenoise.runtime.contract import HISTORY, state_input_name
+from mcdenoise.training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
                                     aux_features, bind_inputs, check_accum_model_spec,
                                     temporal_accumulate)
-from training.specs import ModelSpec, register
+from mcdenoise.training.specs import ModelSpec, register
 
 #: Fusion logits are clamped to ±LOGIT_BOUND before exp (by the prediction stage, for all its
 #: outputs), so the softmax of Eq. 5 needs no per-pixel maximum (a channel reduction, slow in

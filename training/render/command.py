@@ -16,7 +16,7 @@ import os
 import sys
 import time
 
-from runtime.args import add_seed, add_size
+from mcdenoise.runtime.args import add_seed, add_size
 
 #: Scene seed = --seed * SCENE_STRIDE + scene index, so held-out splits can be made by seed
 #: and two base seeds never share a scene.
@@ -59,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ref-spp", type=_positive, default=256,
                    help="samples per pixel of the reference, independent seed (default 256)")
     add_size(p, "256x256")
-    add_seed(p)
+    add_seed(p, "the procedural scenes, their camera paths and the sample passes; scene seed = seed x 100000 + index")
     p.add_argument("--defocus", type=probability, default=0.5, metavar="P|on|off",
                    help="probability a procedural scene gets a thin lens (default 0.5); a --scene keeps its own lens")
     p.add_argument("--motion-blur", type=probability, default=0.0, metavar="P|on|off",
@@ -104,8 +104,8 @@ def _settings(args, variant: str) -> dict:
 def plan(args) -> list[dict]:
     """One job per sequence: scene seed, folder name, frames, and the passes it will render
     (for the progress bar).  Pure: no rendering, no Mitsuba."""
-    from training.render import procedural
-    from training.render.renderer import passes_per_frame
+    from mcdenoise.training.render import procedural
+    from mcdenoise.training.render.renderer import passes_per_frame
 
     jobs = []
     for i in range(args.scenes):
@@ -116,7 +116,7 @@ def plan(args) -> list[dict]:
             stem = os.path.splitext(os.path.basename(args.scene))[0]
             name = f"{stem}_{seed:07d}"
             if frames is None and args.camera_path:
-                from training.render.camera import load_camera_path
+                from mcdenoise.training.render.camera import load_camera_path
 
                 frames = len(load_camera_path(args.camera_path)[0])
         else:
@@ -128,7 +128,7 @@ def plan(args) -> list[dict]:
 
 
 def _complete(out: str, entry: dict | None, settings: dict, job: dict) -> bool:
-    from runtime.frames import frame_name
+    from mcdenoise.runtime.frames import frame_name
 
     if not entry or entry.get("settings") != settings or entry.get("frames") != job["frames"]:
         return False
@@ -136,8 +136,28 @@ def _complete(out: str, entry: dict | None, settings: dict, job: dict) -> bool:
     return all(os.path.isfile(os.path.join(folder, frame_name(t))) for t in range(job["frames"]))
 
 
+def finished(args) -> bool:
+    """Whether ``args.out`` already holds every sequence these arguments plan, each finished with
+    the same settings, whichever Mitsuba variant rendered it (the variants differ in noise, not
+    in scenes): test sets are reused instead of re-rendered on a machine with the other one."""
+    from mcdenoise.runtime.frames import frame_name
+
+    want = {k: v for k, v in _settings(args, "").items() if k != "variant"}
+    entries = {e["folder"]: e for e in _read_manifest(os.path.abspath(args.out)).get("sequences", [])}
+    for job in plan(args):
+        entry = entries.get(job["name"])
+        if not entry or entry.get("frames") != job["frames"]:
+            return False
+        if {k: v for k, v in (entry.get("settings") or {}).items() if k != "variant"} != want:
+            return False
+        folder = os.path.join(args.out, job["name"])
+        if not all(os.path.isfile(os.path.join(folder, frame_name(t))) for t in range(job["frames"])):
+            return False
+    return True
+
+
 def _write_manifest(out: str, manifest: dict) -> None:
-    from runtime.frames import MANIFEST
+    from mcdenoise.runtime.frames import MANIFEST
 
     path = os.path.join(out, MANIFEST)
     tmp = path + ".tmp"
@@ -147,7 +167,7 @@ def _write_manifest(out: str, manifest: dict) -> None:
 
 
 def _read_manifest(out: str) -> dict:
-    from runtime.frames import MANIFEST
+    from mcdenoise.runtime.frames import MANIFEST
 
     path = os.path.join(out, MANIFEST)
     if not os.path.isfile(path):
@@ -166,9 +186,9 @@ def _read_manifest(out: str) -> dict:
 def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     """Render one sequence; returns its manifest entry.  ``progress``: a callable taking the
     number of finished render calls, or a queue to put them on (worker processes)."""
-    from training.render import procedural
-    from training.render.renderer import RenderError, load_procedural, one_line, render_sequence, user_scene
-    from training.render.variant import init_mitsuba
+    from mcdenoise.training.render import procedural
+    from mcdenoise.training.render.renderer import RenderError, load_procedural, one_line, render_sequence, user_scene
+    from mcdenoise.training.render.variant import init_mitsuba
 
     mi = init_mitsuba(variant)
     a = argparse.Namespace(**args_dict)
@@ -244,7 +264,7 @@ def _run_parallel(todo, args_dict, variant, bar, done, workers):
 def main(args) -> int:
     from tqdm import tqdm
 
-    from training.render.variant import announce, choose_variant, init_mitsuba
+    from mcdenoise.training.render.variant import announce, choose_variant, init_mitsuba
 
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")

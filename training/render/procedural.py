@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.frames import write_rgb
-from training.render.camera import FlyThrough, Intrinsics, look_at, rotation, translation
+from mcdenoise.runtime.frames import write_rgb
+from mcdenoise.training.render.camera import FlyThrough, Intrinsics, look_at, rotation, translation
 
 #: Path tracing depth: five bounces after the primary hit, as NDLE §4 renders its training set.
 MAX_DEPTH = 6

@@ -34,9 +34,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, frame_name, pixel_means, write_frame
-from training.render import camera as cam
-from training.render import materials, procedural
+from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, frame_name, pixel_means, write_frame
+from mcdenoise.training.render import camera as cam
+from mcdenoise.training.render import materials, procedural
 
 #: AOV integrator channels, in the order Mitsuba returns them after the RGB channels.  No
 #: ``depth``: Mitsuba measures it from the near-clip plane (rays start there), so the renderer
