@@ -90,3 +90,13 @@ def test_shared_flags_mean_the_same_in_every_command():
                 seen.add(flag)
                 assert action.help.startswith(SHARED_HELP[flag]), (name, flag, action.help)
     assert seen == set(SHARED_HELP)
+
+
+def test_a_test_set_that_fails_to_render(tmp_path, capsys):
+    """bench and stress render missing test sets in a subprocess (testsets.render): a render
+    that fails is one line naming the set, the command and the render's own error."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code = main(["stress", "--quick", "--render-dir", str(blocker), "--out", str(tmp_path / "out")])
+    line = _one_line_error(capsys, code, "rendering stress set 'base' failed", "mcdenoise render --out")
+    assert line.count("mcdenoise render: error:") == 1, line

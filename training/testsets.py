@@ -53,6 +53,10 @@ STILLS = TestSet("data/bench-stills", 16, 1, "128x128", 8, 512, 4)
 SEQUENCES = TestSet("data/test", 8, 4, "128x128", 4, 512, 2)
 #: ``bench --quick`` without --data / --stills: a tiny set for both (seed 4).
 QUICK = TestSet("data/bench-quick", 2, 3, "64x64", 8, 64, 4)
+#: Long sequences as a real-time user sees them (issue 15): the same two scenes (seed 6) with a
+#: slow, medium and fast camera, 24 frames at 256x256, 8 stored spp, 1024-spp references.
+LONG_SEQUENCES = {name: TestSet(f"data/long-{name}", 2, 24, "256x256", 8, 1024, 6, ("--camera-speed", speed))
+                  for name, speed in (("slow", "0.5"), ("medium", "1"), ("fast", "2"))}
 
 
 #: Scene seeds of the rendered stress sets: RENDER_SEED * 100000 + i (training uses 1, test 2).
