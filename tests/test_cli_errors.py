@@ -100,3 +100,12 @@ def test_a_test_set_that_fails_to_render(tmp_path, capsys):
     code = main(["stress", "--quick", "--render-dir", str(blocker), "--out", str(tmp_path / "out")])
     line = _one_line_error(capsys, code, "rendering stress set 'base' failed", "mcdenoise render --out")
     assert line.count("mcdenoise render: error:") == 1, line
+
+
+@pytest.mark.parametrize("argv", [["bench", "--sizes", "foo"], ["bench", "--chart-size", "3x"],
+                                  ["render", "--out", "x", "--size", "0x0"], ["denoise", "--output", "o", "--threads", "two"]])
+def test_bad_flag_values(argv, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "Traceback" not in err and err.strip().splitlines()[-1].startswith(f"mcdenoise {argv[0]}: error:"), err

@@ -233,9 +233,9 @@ def add_arguments(p):
                    help=f"built-in methods besides the models (default: {' '.join(BUILTIN_METHODS)})")
     p.add_argument("--quick", action="store_true",
                    help="CI mode: 64x64, 3 timed frames, no torch, a tiny test set (--data or rendered)")
-    p.add_argument("--sizes", nargs="+", default=None,
+    p.add_argument("--sizes", nargs="+", type=parse_size, default=None, metavar="WxH",
                    help=f"timing resolutions WxH (default {' '.join(DEFAULT_SIZES)}; --quick: 64x64)")
-    p.add_argument("--chart-size", default=None,
+    p.add_argument("--chart-size", type=parse_size, default=None, metavar="WxH",
                    help=f"resolution of the ms/frame in the chart and table (default {CHART_SIZE}; --quick: 64x64)")
     p.add_argument("--frames", type=int, default=None, help="timed frames per measurement (default 5; --quick 3)")
     p.add_argument("--warmup", type=int, default=None, help="untimed frames first (default 2; --quick 1)")
