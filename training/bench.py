@@ -7,29 +7,30 @@ temporal filter (``svgf``, the non-neural baseline) and the noisy input.
 *Quality* on test sets rendered from held-out seeds (training used ``--seed 1``):
 
 * stills: each sequence's first frame, after a reset (no history), at 1, 2, 4, 8 spp, from
-  :data:`STILLS` (``--seed 4``, 8 stored spp; rendered once with ``mcdenoise render`` when the
+  :data:`training.testsets.STILLS` (``--seed 4``, 8 stored spp; rendered once with ``mcdenoise render`` when the
   folder is missing, reused afterwards);
-* sequences: every frame with temporal state, at 1 and 4 spp, from :data:`SEQUENCES` (the
+* sequences: every frame with temporal state, at 1 and 4 spp, from :data:`training.testsets.SEQUENCES` (the
   README's ``data/test``, ``--seed 2``).  Sequence scores: PSNR over all frames, TRMAE per
-  sequence (mean), SSIM, FLIP, SMAPE, relMSE (:mod:`training.evaluate`).
+  sequence (mean), SSIM, FLIP, SMAPE, relMSE (:func:`training.scoring.score`).
 
-*Speed* in the same run, on a synthetic sequence with history (:func:`synthetic_frame`, fixed
+*Speed* in the same run, on a synthetic sequence with history (:func:`training.harness.synthetic_frame`, fixed
 seeds; timing hardly depends on the content: the one data-dependent branch, the reprojection
 skipping bilinear taps of zero weight, never fires on its sub-pixel pan): per-stage median ms
 of the onnxruntime driver (profiled: graph stages get their own rows) and of torch eager
 (forward hooks), whole frame ms of OIDN and SVGF, at each ``--sizes``, all methods
-interleaved frame by frame (:func:`time_interleaved`); the noisy input costs 0 ms.
+interleaved frame by frame (:func:`training.harness.time_interleaved`); the noisy input costs 0 ms.
 
 *Compute*: FLOPs/FMAs and parameters of each model at each size (:mod:`runtime.flops`), the
 achieved GFLOP/s (FLOPs / graph wall time) against this CPU's peak
 (:func:`runtime.flops.cpu_peak`); Open Image Denoise's published U-Net counted from its layer
-table (:data:`OIDN_UNET`).
+table (:data:`training.harness.OIDN_UNET`).
 
 Writes under ``--out``: ``bench.md`` (all tables, the charts linked), ``bench.csv`` (per-stage
 timing), ``bench_quality.csv``, ``bench_flops.csv``, and the charts ``psnr_vs_time.png``
 (PSNR of 1-spp sequences vs ms per frame at ``--chart-size``, log time axis, Pareto front),
 ``psnr_vs_spp.png`` and ``trmae.png``.  Every file states the command line that wrote it.
 Quality numbers are deterministic given the data (and the data given its seeds); times are not.
+This module only orchestrates: test sets, harness, scoring and report are their own modules.
 
 ``--quick`` (CI): 64x64, 3 timed frames, no torch, the tiny test set of ``--data`` (or a 2 x 3
 frame set rendered at 64x64 with ``--seed 4``): a couple of minutes on 2 cores.

@@ -389,10 +389,6 @@ def crop_case(case: Case, runs: dict, results: dict, table: dict, methods: list[
     return {"method": worst, "frame": list(key), "y": y, "x": x, "size": s}
 
 
-def default_methods() -> list[str]:
-    from mcdenoise.runtime.methods import shipped_models
-
-    return [*shipped_models(), *DEFAULT_EXTRA]
 
 
 def stress(methods: list[str] | None = None, data: str | None = None, render_dir: str = "data/stress",
@@ -400,9 +396,9 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
            threads: int = 0, seed: int = 0, command: str | None = None, log=print) -> dict:
     """Run the suite and write ``stress.md``, ``stress.csv`` and ``stress/<case>.png`` into
     ``out``.  Returns {"table": {(case, method): row}, "cases": [...], "methods": [...], ...}."""
-    from mcdenoise.runtime.methods import load_method
+    from mcdenoise.runtime.methods import load_method, shipped_models
 
-    methods = list(methods) if methods else default_methods()
+    methods = list(methods) if methods else [*shipped_models(), *DEFAULT_EXTRA]
     started = time.perf_counter()
     sets: dict[str, dict] = {}
     limit = QUICK_LIMIT if quick else None
