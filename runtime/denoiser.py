@@ -31,7 +31,7 @@ from mcdenoise.runtime import bands as bands_mod, graphcut, timing, transfer
 from mcdenoise.runtime.contract import parse_contract
 from mcdenoise.runtime.frames import Frame, FrameError
 from mcdenoise.runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
-from mcdenoise.runtime.temporal import reproject
+from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime import workers
 from mcdenoise.runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
@@ -68,11 +68,6 @@ def _as_frame(frame) -> Frame:
     raise FrameError(f"frame: expected a Frame, a dict of layers or an (H, W, 3) array, got {type(frame).__name__}")
 
 
-def _accum_key(entry: dict) -> str:
-    """Key of an accumulated input in the driver's state (apart from the model's state names)."""
-    return "accumulate:" + entry["input"]
-
-
 class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
@@ -100,6 +95,8 @@ class Denoiser:
         #: The current history's auto-exposure factor (set at its first frame; 1 when off).
         self.exposure = 1.0
         self.contract = contract
+        #: How the history is kept and fed back (one definition with the trainer's unroll).
+        self.protocol = Protocol.from_contract(contract)
         self.path = path
         self._profile_path = profile_path
         self._log = log if log is not None else (lambda msg: print(f"mcdenoise: {msg}", file=sys.stderr))
@@ -240,7 +237,7 @@ class Denoiser:
             # Each layer is converted to planes and sanitised once, whether the model, the
             # guide buffers or the reprojection reads it.
             extra = [g for g in GUIDE_LAYERS if getattr(fr, g) is not None]
-            if self.contract.temporal and fr.motion is not None:
+            if self.protocol.temporal and fr.motion is not None:
                 extra.append("motion")
             # Two buffer sets: this frame fills the one the kept previous guides are not in
             # (also after a frame that failed half-way).
@@ -307,17 +304,7 @@ class Denoiser:
             if named is None:
                 self._state, self._guides = None, None
             else:
-                self._state = accumulated
-                for st in self.contract.state:
-                    arr = named[st["output"]].astype(np.float32, copy=False)
-                    if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
-                        arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
-                    if self._alloc is not np.empty:
-                        # Into shared memory, so that the helper process can reproject it.
-                        shared = self._alloc(arr.shape, arr.dtype)
-                        np.copyto(shared, arr)
-                        arr = shared
-                    self._state[st["name"]] = arr
+                self._state = self.protocol.update(accumulated, named, keep=self._keep)
                 self._guides, self._guides_set = guides, buffer_set
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
         if graph_stages is None:
@@ -337,37 +324,35 @@ class Denoiser:
             g["depth"] = np.ones((1, 1, *fr.size), np.float32)
         return g
 
+    def _keep(self, arr: np.ndarray) -> np.ndarray:
+        """A state output as the history keeps it: float32, non-finite values 0 (they must never
+        reach the next frame), in shared memory when the helper process reprojects it."""
+        arr = arr.astype(np.float32, copy=False)
+        if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
+            arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
+        if self._alloc is not np.empty:
+            shared = self._alloc(arr.shape, arr.dtype)
+            np.copyto(shared, arr)
+            arr = shared
+        return arr
+
     def _state_inputs(self, motion, guides, h: int, w: int, feeds: dict) -> dict[str, np.ndarray]:
-        """Add the reprojected state inputs and the history mask to ``feeds``, and replace each
-        accumulated input (``contract.accumulate``) by its accumulation; returns the
-        accumulations {state key: array} to keep for the next frame.  ``motion`` (1, 2, H, W)
-        sanitised (non-finite -> 0) or None; ``feeds`` holds this frame's (sanitised) inputs."""
-        acc = self.contract.accumulate
-        if not self.contract.temporal:
+        """The protocol's feeds for this frame (:class:`runtime.temporal.Protocol`): a new
+        history's zeros, or the kept one reprojected; returns the accumulations to keep.
+        ``motion`` (1, 2, H, W) sanitised (non-finite -> 0) or None; ``feeds`` holds this
+        frame's (sanitised) inputs."""
+        if not self.protocol.temporal:
             return {}
         if self._state is None:
-            for st in self.contract.state:
-                feeds[st["input"]] = np.zeros((1, st["channels"], h, w), np.float32)
-            if self.contract.state:
-                feeds[self.contract.history] = np.zeros((1, 1, h, w), np.float32)
-            # A new history starts at the frame itself (accumulate() with history 0).
-            return {_accum_key(a): feeds[a["input"]] for a in acc}
+            return self.protocol.start(feeds, next(iter(feeds.values())))
         if motion is None:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)
-        keys = [st["name"] for st in self.contract.state] + [_accum_key(a) for a in acc]
-        blend = [None] * len(self.contract.state) + [(feeds[a["input"]], float(a["alpha"])) for a in acc]
-        warped, history = reproject([self._state[k] for k in keys], motion, guides, self._guides,
-                                    threads=self.driver_threads, blend=blend, alloc=self._alloc)
+        kept = self.protocol.follow(feeds, self._state, motion, guides, self._guides,
+                                    contiguous=lambda a: np.ascontiguousarray(a, dtype=np.float32),
+                                    threads=self.driver_threads, alloc=self._alloc)
         if workers.helper_problem and self._alloc is workers.shared_empty:
             self._say(workers.helper_problem, once_key="helper")
-        for st, arr in zip(self.contract.state, warped):
-            feeds[st["input"]] = np.ascontiguousarray(arr, dtype=np.float32)
-        if self.contract.state:
-            feeds[self.contract.history] = np.ascontiguousarray(history, dtype=np.float32)
-        kept = {}
-        for a, arr in zip(acc, warped[len(self.contract.state):]):
-            feeds[a["input"]] = kept[_accum_key(a)] = np.ascontiguousarray(arr, dtype=np.float32)
         return kept
 
     # ------------------------------------------------------------------ timing

@@ -17,8 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from mcdenoise.runtime.transfer import xp
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
 from mcdenoise.runtime import workers
+from mcdenoise.runtime.contract import HISTORY, state_input_name, state_output_name
+from mcdenoise.runtime.transfer import xp
 
 #: A tap is consistent when its world position lies within this fraction of the current
 #: depth (≈ 8 pixel footprints at 256 px and 45° fov: loose enough for slanted surfaces,
@@ -49,6 +53,108 @@ THREADED_BAND_ROWS = 45
 #: costs more than it saves there (wskpn-3, two threads, interleaved: 160x120 3.5 ms on
 #: threads, 4.3 with the helper; 256x256 9.2 and 5.8).
 HELPER_MIN_PIXELS = 1 << 15
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """The temporal protocol of one model, the one definition of how a history is kept and fed
+    back: the driver, the trainer's unroll, the bench and the export's example inputs all run
+    it. It holds no arrays and imports no torch; what it does to arrays (zeros,
+    :func:`reproject`, :func:`accumulate`) works on numpy arrays and torch tensors alike.
+
+    A history is a dict ``kept`` carried from frame to frame: the model's state tensors by
+    state name (from its ``next_<name>`` outputs) and the accumulated inputs by
+    :meth:`accum_key`, all (N, C, H, W) in the history's exposed units.
+
+    Per frame, on ``feeds`` (graph input name -> (N, C, H, W) array, this frame's inputs):
+    :meth:`start` (the first frame of a history: zero state and history mask, accumulations
+    start at the frame) or :meth:`follow` (reproject ``kept`` onto this frame, with the
+    history mask; accumulated inputs replaced by their accumulations), then the model runs on
+    ``feeds``, then :meth:`update` adds its state outputs to what :meth:`start` / :meth:`follow`
+    returned.
+
+    state: (name, graph input, graph output, channels) per state tensor.
+    accumulate: (frame layer, graph input, alpha) per accumulated input (alpha: the current
+      frame's weight).
+    history: the history-mask input ("" without state).
+    """
+
+    state: tuple[tuple[str, str, str, int], ...] = ()
+    accumulate: tuple[tuple[str, str, float], ...] = ()
+    history: str = ""
+
+    @classmethod
+    def from_contract(cls, contract) -> "Protocol":
+        """From a model file's :class:`runtime.contract.Contract`."""
+        return cls(tuple((s["name"], s["input"], s["output"], int(s["channels"])) for s in contract.state),
+                   tuple((a["layer"], a["input"], float(a["alpha"])) for a in contract.accumulate),
+                   contract.history)
+
+    @classmethod
+    def from_spec(cls, state_channels: Mapping[str, int], accumulate=()) -> "Protocol":
+        """From a model spec's parts: {state name: channels} and (layer, alpha) pairs (a pixel
+        layer's graph input carries its name), with the contract's input and output names."""
+        state = tuple((n, state_input_name(n), state_output_name(n), int(c)) for n, c in state_channels.items())
+        return cls(state, tuple((layer, layer, float(alpha)) for layer, alpha in accumulate),
+                   HISTORY if state else "")
+
+    @property
+    def temporal(self) -> bool:
+        """Whether anything is kept between frames."""
+        return bool(self.state or self.accumulate)
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """Graph inputs the protocol fills: the state inputs, then the history mask."""
+        return tuple(s[1] for s in self.state) + ((self.history,) if self.state else ())
+
+    @staticmethod
+    def accum_key(graph_input: str) -> str:
+        """Key of an accumulated input in ``kept`` (apart from the state names)."""
+        return "accumulate:" + graph_input
+
+    def start(self, feeds: dict, like) -> dict:
+        """The first frame of a history: zero state inputs and history mask into ``feeds``
+        (shaped and typed like ``like``, an (N, C, H, W) input of this frame); returns the
+        accumulations kept so far (each starts at the frame itself, as :func:`accumulate`
+        does with history 0)."""
+        n, _, h, w = like.shape
+        for _, inp, _, ch in self.state:
+            feeds[inp] = _zeros(like, (n, ch, h, w))
+        if self.state:
+            feeds[self.history] = _zeros(like, (n, 1, h, w))
+        return {self.accum_key(inp): feeds[inp] for _, inp, _ in self.accumulate}
+
+    def follow(self, feeds: dict, kept: dict, motion, cur: dict, prev: dict,
+               contiguous: Callable = lambda a: a, **reproject_args) -> dict:
+        """A frame that continues the history ``kept`` (from :meth:`update`): its state and
+        accumulations reprojected along ``motion`` (N, 2, H, W) with the consistency test on
+        the guides ``cur`` / ``prev`` (:func:`reproject`, which gets ``reproject_args``), put
+        into ``feeds`` with the history mask; each accumulated input becomes its
+        accumulation. ``contiguous`` prepares each array fed (the driver makes them
+        contiguous float32). Returns the accumulations to keep."""
+        keys = [s[0] for s in self.state] + [self.accum_key(inp) for _, inp, _ in self.accumulate]
+        blend = [None] * len(self.state) + [(feeds[inp], alpha) for _, inp, alpha in self.accumulate]
+        warped, history = reproject([kept[k] for k in keys], motion, cur, prev, blend=blend, **reproject_args)
+        for (_, inp, _, _), arr in zip(self.state, warped):
+            feeds[inp] = contiguous(arr)
+        if self.state:
+            feeds[self.history] = contiguous(history)
+        out = {}
+        for (_, inp, _), arr in zip(self.accumulate, warped[len(self.state):]):
+            feeds[inp] = out[self.accum_key(inp)] = contiguous(arr)
+        return out
+
+    def update(self, kept: dict, outputs: Mapping, keep: Callable = lambda a: a) -> dict:
+        """The history after this frame: the accumulations from :meth:`start` / :meth:`follow`
+        plus the model's state outputs (graph output name -> array), each through ``keep``
+        (the driver zeroes non-finite values there)."""
+        return {**kept, **{name: keep(outputs[out]) for name, _, out, _ in self.state}}
+
+
+def _zeros(like, shape):
+    """Zeros of ``shape`` with ``like``'s array type, dtype and device."""
+    return np.zeros(shape, like.dtype) if isinstance(like, np.ndarray) else like.new_zeros(shape)
 
 
 def accumulate(current, prev, history, alpha: float):

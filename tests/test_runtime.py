@@ -72,8 +72,7 @@ def test_driver_matches_training_unroll(model_file):
             batch.setdefault(k, []).append(torch.from_numpy(v))
     batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}  # (1, T, C, H, W)
     with torch.no_grad():
-        ref = run_window(model, batch, {s.name: s.channels for s in spec.state},
-                         accumulate=[(a.layer, a.alpha) for a in spec.accumulate])
+        ref = run_window(model, batch, spec.protocol)
     for t in range(2):
         np.testing.assert_allclose(outs[t], ref[t]["output"][0].numpy().transpose(1, 2, 0),
                                    rtol=1e-4, atol=1e-5)
@@ -575,11 +574,11 @@ def test_helper_process_across_resolution_changes_and_closed_segments(model_file
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
     """The driver reuses two sets of input planes; the previous frame's guides must reach the
     reprojection intact, also when the frame before failed half-way."""
-    import mcdenoise.runtime.denoiser as rd
+    import mcdenoise.runtime.temporal as rt
 
     seen = []
-    real = rd.reproject
-    monkeypatch.setattr(rd, "reproject", lambda s, m, cur, prev, **kw: (
+    real = rt.reproject
+    monkeypatch.setattr(rt, "reproject", lambda s, m, cur, prev, **kw: (
         seen.append({k: v.copy() for k, v in prev.items()}), real(s, m, cur, prev, **kw))[1])
     path, _, _ = model_file
     den = Denoiser.load(path, log=lambda m: None)

@@ -228,3 +228,57 @@ def test_huge_and_nan_motion_is_off_screen_not_a_hang():
     (wt,), ht = _torch_reproject([state], motion, g, prev)
     np.testing.assert_array_equal(ht.numpy(), hn)
     np.testing.assert_array_equal(wt.numpy(), wn)
+
+
+# ----------------------------------------------------------------------------------------------
+# The protocol: one definition of a history for the driver and the trainer
+# ----------------------------------------------------------------------------------------------
+
+def _spec_names():
+    from mcdenoise.training.specs import list_specs
+
+    return list_specs()
+
+
+@pytest.mark.parametrize("name", _spec_names())
+def test_protocol_runs_the_same_on_numpy_and_torch(name):
+    """start -> update -> follow over two frames: the feeds the model would get and the history
+    kept are the same for numpy arrays (the driver) and torch tensors (the trainer)."""
+    from mcdenoise.training.specs import load_spec
+
+    proto = load_spec(name).protocol
+    rng = np.random.default_rng(3)
+    motion, cur, prev = _scene(h=7, w=9, shift=0.4)
+    frames = [{layer: rng.random((1, 3 if layer != "depth" else 1, 7, 9), dtype=np.float32)
+               for layer in ("color", "albedo", "normal", "depth")} for _ in range(2)]
+    outputs = {out: rng.random((1, ch, 7, 9), dtype=np.float32) for _, _, out, ch in proto.state}
+    got = {}
+    for lib, conv in (("numpy", lambda a: a.copy()), ("torch", torch.from_numpy)):
+        wrap = lambda d: {k: conv(v) for k, v in d.items()}  # noqa: E731
+        f0, f1 = wrap(frames[0]), wrap(frames[1])
+        acc = proto.start(f0, f0["color"])
+        assert set(f0) == set(frames[0]) | set(proto.inputs)
+        for inp in proto.inputs:
+            assert float(np.abs(np.asarray(f0[inp])).max()) == 0.0
+        kept = proto.update(acc, wrap(outputs))
+        acc = proto.follow(f1, kept, conv(motion), wrap(cur), wrap(prev))
+        kept = proto.update(acc, wrap(outputs))
+        got[lib] = {"feeds": {k: np.asarray(v) for k, v in f1.items()}, "kept": {k: np.asarray(v) for k, v in kept.items()}}
+    for part in ("feeds", "kept"):
+        assert got["numpy"][part].keys() == got["torch"][part].keys()
+        for k in got["numpy"][part]:
+            np.testing.assert_allclose(got["numpy"][part][k], got["torch"][part][k], rtol=1e-6, atol=1e-6, err_msg=k)
+    if proto.accumulate:   # the colour fed is the accumulation, not the frame's colour
+        assert not np.allclose(got["numpy"]["feeds"]["color"], frames[1]["color"])
+    assert set(got["numpy"]["kept"]) == {s[0] for s in proto.state} | {proto.accum_key(a[1]) for a in proto.accumulate}
+
+
+def test_shipped_files_and_their_specs_declare_the_same_protocol():
+    from mcdenoise.runtime.denoiser import Denoiser
+    from mcdenoise.runtime.methods import shipped_models
+    from mcdenoise.training.specs import parse_spec
+
+    for path in shipped_models():
+        den = Denoiser.load(path, log=lambda m: None)
+        assert den.protocol == parse_spec(den.contract.spec_toml).protocol, path
+        assert den.protocol.temporal

@@ -180,7 +180,7 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
             if torch_too:
                 spec = parse_spec(c.spec_toml, f"{path} (embedded spec)")
                 model = build_model(spec).eval().deploy()
-                torch_med = bench_torch(model, stages, w, h, frames, warmup, seed, device)
+                torch_med = bench_torch(model, spec.protocol, stages, w, h, frames, warmup, seed, device)
             order = (list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER)
                      + [timing.GRAPH, timing.TOTAL])
             for s in order:

@@ -139,10 +139,11 @@ def oidn_cuda(quality: str):
     return OIDNCuda(quality)
 
 
-def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0,
+def bench_torch(model, protocol, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0,
                 device: str = "cpu"):
     """{stage: median ms} and the graph's total of torch eager, stages by forward hooks (on
-    ``device="cuda"`` each hook synchronises, so a stage's time is its kernels' time)."""
+    ``device="cuda"`` each hook synchronises, so a stage's time is its kernels' time).
+    ``protocol`` (:class:`runtime.temporal.Protocol`) names the inputs a history fills."""
     import torch
 
     model = model.to(device)
@@ -170,16 +171,13 @@ def bench_torch(model, contract_stages, w: int, h: int, frames: int, warmup: int
         # gets one: timing one tensor set over and over would run torch from warm caches.
         frame = Frame(**synthetic_frame(w, h, t, seed))
         feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(
-            frame, [n for n in model.input_names if not n.startswith("prev_") and n != "history"]).items()}
-        args = []
-        for n in model.input_names:
-            if n == "history":
-                args.append(torch.ones(1, 1, h, w, device=device))
-            elif n.startswith("prev_"):
-                args.append(feeds["color"].clone())
-            else:
-                args.append(feeds[n])
-        return args
+            frame, [n for n in model.input_names if n not in protocol.inputs]).items()}
+        # A history in full swing: every pixel has one, the state holds colour-like values.
+        for _, inp, _, ch in protocol.state:
+            feeds[inp] = feeds["color"][:, :1].expand(-1, ch, -1, -1).clone()
+        if protocol.state:
+            feeds[protocol.history] = torch.ones(1, 1, h, w, device=device)
+        return [feeds[n] for n in model.input_names]
 
     total = []
     with torch.inference_mode():

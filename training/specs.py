@@ -373,6 +373,14 @@ class ModelSpec:
         return tuple(names + ([HISTORY] if self.state else []))
 
     @property
+    def protocol(self):
+        """The temporal protocol of this model (:class:`runtime.temporal.Protocol`)."""
+        from mcdenoise.runtime.temporal import Protocol
+
+        return Protocol.from_spec({s.name: s.channels for s in self.state},
+                                  [(a.layer, a.alpha) for a in self.accumulate])
+
+    @property
     def output_names(self) -> tuple[str, ...]:
         """Graph outputs: ``output``, then ``next_<state>``."""
         return (OUTPUT,) + tuple(state_output_name(s.name) for s in self.state)

@@ -25,7 +25,7 @@ from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
 from mcdenoise.runtime.contract import OUTPUT
 from mcdenoise.runtime.inputs import exposure_scale
 from mcdenoise.runtime.metrics import psnr, relmse, smape
-from mcdenoise.runtime.temporal import reproject
+from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.transfer import gamma
 from mcdenoise.training import runs
 
@@ -46,69 +46,35 @@ def _l1(pred, ref):
 LOSSES = {"smape": smape, "l1": _l1, "l1_gamma": _l1_gamma}
 
 
-def model_inputs(model, frame: dict, states: dict | None, history, state_channels: dict):
-    """Positional inputs for ``model`` at one frame.
+def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True):
+    """Run the model over a batch of windows (B, T, C, H, W); returns a list of output dicts.
 
-    frame: name -> (N, C, H, W) tensors for this frame; states: state name -> reprojected
-    (N, C, H, W) tensor (None on the first frame: zeros); history: (N, 1, H, W);
-    state_channels: state name -> channels (from the spec).
-    """
-    import torch
-
-    args = []
-    ref = frame["color"]
-    for name in model.input_names:
-        if name == "history":
-            args.append(history)
-        elif name.startswith("prev_"):
-            st = None if states is None else states.get(name[5:])
-            if st is None:
-                ch = state_channels[name[5:]]
-                st = torch.zeros(ref.shape[0], ch, *ref.shape[2:], dtype=ref.dtype)
-            args.append(st)
-        else:
-            if name not in frame:
-                raise KeyError(f"model input {name!r} not in the batch ({sorted(frame)})")
-            args.append(frame[name])
-    return args
-
-
-def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = True, accumulate=()):
-    """Run the model over a batch of windows (B, T, C, H, W); returns list of output dicts.
-
-    accumulate: (layer, alpha) pairs (the spec's ``[[accumulate]]``): that input is fed as its
-    temporal accumulation, as the driver feeds it.
+    The history is kept and fed back by ``protocol`` (:class:`runtime.temporal.Protocol`, the
+    driver's own): zero state at each window's first frame, then the model's state outputs
+    and the accumulated inputs reprojected frame to frame, differentiably.
 
     As the runtime driver does, each window's colour is scaled by its auto-exposure factor
     (:func:`runtime.inputs.exposure_scale` of its first frame, fixed for the window) and the
     ``output`` scaled back, so outputs are in the data's units and the state in the
     window's exposed units."""
-    import torch
-
-    b, t_len = batch["color"].shape[:2]
+    t_len = batch["color"].shape[1]
     outputs = []
-    states = None
-    accums: dict = {}
-    prev_guides = None
-    h, w = batch["color"].shape[-2:]
-    history = torch.zeros(b, 1, h, w)
+    kept, prev_guides = None, None
     exposure = exposure_scale(batch["color"][:, 0]) if autoexposure else None
     for t in range(t_len):
-        frame = {k: v[:, t] for k, v in batch.items() if k != "spp"}
+        feeds = {k: v[:, t] for k, v in batch.items() if k != "spp"}   # pixel inputs carry their layer's name
         if exposure is not None:
-            frame["color"] = frame["color"] * exposure
-        guides = {"depth": frame["depth"],
-                  "position": frame["position"], "normal": frame["normal_world"]}
-        if t > 0:
-            names = [n for n in model.output_names if n.startswith("next_")]
-            warped, history = reproject([outputs[-1][n] for n in names] + [accums[l] for l, _ in accumulate],
-                                        frame["motion"], guides, prev_guides,
-                                        blend=[None] * len(names) + [(frame[l], a) for l, a in accumulate])
-            states = {n[5:]: s for n, s in zip(names, warped)}
-            for (l, _), acc in zip(accumulate, warped[len(names):]):
-                frame[l] = acc
-        accums = {l: frame[l] for l, _ in accumulate}
-        out = dict(zip(model.output_names, model(*model_inputs(model, frame, states, history, state_channels))))
+            feeds["color"] = feeds["color"] * exposure
+        guides = {"depth": feeds["depth"], "position": feeds["position"], "normal": feeds["normal_world"]}
+        if kept is None:
+            acc = protocol.start(feeds, feeds["color"])
+        else:
+            acc = protocol.follow(feeds, kept, feeds["motion"], guides, prev_guides)
+        missing = [n for n in model.input_names if n not in feeds]
+        if missing:
+            raise KeyError(f"model input(s) {missing} not in the batch ({sorted(feeds)})")
+        out = dict(zip(model.output_names, model(*[feeds[n] for n in model.input_names])))
+        kept = protocol.update(acc, out)
         if exposure is not None:
             out[OUTPUT] = out[OUTPUT] / exposure
         outputs.append(out)
@@ -116,7 +82,7 @@ def run_window(model, batch: dict, state_channels: dict, autoexposure: bool = Tr
     return outputs
 
 
-def evaluate(model, dataset, state_channels: dict, batch_size: int = 4, accumulate=()) -> dict:
+def evaluate(model, dataset, protocol: Protocol, batch_size: int = 4) -> dict:
     """Validation metrics on the last frame of every window (temporal state warmed up):
     SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
     import torch
@@ -128,7 +94,7 @@ def evaluate(model, dataset, state_channels: dict, batch_size: int = 4, accumula
     with torch.no_grad():
         for i in range(0, len(dataset), batch_size):
             batch = collate([dataset[j] for j in range(i, min(len(dataset), i + batch_size))])
-            outs = run_window(model, batch, state_channels, accumulate=accumulate)
+            outs = run_window(model, batch, protocol)
             preds.append(outs[-1]["output"].numpy())
             refs.append(batch["reference"][:, -1].numpy())
             noisy.append(batch["color"][:, -1].numpy())
@@ -196,8 +162,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if config["loss"] not in LOSSES:
         raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
     loss_fn = LOSSES[config["loss"]]
-    state_channels = {s.name: s.channels for s in spec.state}
-    accumulate = tuple((a.layer, a.alpha) for a in spec.accumulate)
+    protocol = spec.protocol
 
     torch.manual_seed(config["seed"])
     model = build_model(spec)
@@ -240,7 +205,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
             batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
-            outs = run_window(model, batch, state_channels, accumulate=accumulate)
+            outs = run_window(model, batch, protocol)
             loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept; "
@@ -255,8 +220,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item(),
-                                 accumulate=accumulate)
+                last = _validate(run, model, val_set, protocol, step, epoch, elapsed, loss.item())
                 save()
             if budget_s is not None and elapsed >= budget_s:
                 break
@@ -264,21 +228,18 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"]:
-                last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss.item(),
-                                 accumulate=accumulate)
+                last = _validate(run, model, val_set, protocol, step, epoch, elapsed, loss.item())
             save()
     if bar is not None:
         bar.close()
     save()
-    last = _validate(run, model, val_set, state_channels, step, epoch, elapsed, None, final=True,
-                     accumulate=accumulate)
+    last = _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True)
     return last
 
 
-def _validate(run, model, val_set, state_channels, step, epoch, elapsed, loss, final=False,
-              accumulate=()) -> dict:
+def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
-           "final": final, **evaluate(model, val_set, state_channels, accumulate=accumulate)}
+           "final": final, **evaluate(model, val_set, protocol)}
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mcdenoise.runtime.contract import HISTORY, STATE_INPUT_PREFIX
+from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.training.models import nbg  # noqa: F401  (registers type "nbg")
 from mcdenoise.training.models import wskpn  # noqa: F401  (registers type "wskpn")
 
@@ -77,13 +77,14 @@ def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0) -
     }
     nrm = rng.normal(size=(n, 3, h, w))
     layers["normal"] = np.where(miss, 0.0, nrm / np.linalg.norm(nrm, axis=1, keepdims=True))
-    hist = rng.random((n, 1, h, w))
-    layers[HISTORY] = np.where(hist < 0.3, 0.0, np.where(hist > 0.6, 1.0, hist))
+    protocol = Protocol.from_spec(model.state_channels)
+    if protocol.state:
+        hist = rng.random((n, 1, h, w))
+        layers[protocol.history] = np.where(hist < 0.3, 0.0, np.where(hist > 0.6, 1.0, hist))
+    layers.update({inp: radiance(ch) for _, inp, _, ch in protocol.state})
     out = {}
     for name in model.input_names:
-        if name.startswith(STATE_INPUT_PREFIX):
-            out[name] = radiance(model.state_channels[name[len(STATE_INPUT_PREFIX):]])
-        elif name in layers:
+        if name in layers:
             out[name] = layers[name]
         else:
             raise KeyError(f"example_inputs: no generator for input {name!r}")
