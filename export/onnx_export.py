@@ -19,10 +19,7 @@ benchmarks need no run folder; :func:`export_run` rebuilds the model from a run 
    :data:`FLOAT32_MARGIN` times torch float32's error: float32 cannot resolve a value that
    comes out of a cancellation (an untrained multi-resolution WSKPN's Eq. 7 turns ±30 terms
    into −0.01 here and there), and the export must not be blamed for that.  Both numbers are
-   reported;
-5. for a stage that declares a halo (rows of context, ``model.stage_halo``), runs it in bands
-   of rows as the driver will (:mod:`runtime.bands`) and requires the whole graph's outputs to
-   the bit (:func:`check_bands`).
+   reported.
 
 The file is written to a temporary name and moved into place only when all checks pass.
 """
@@ -46,9 +43,6 @@ DEFAULT_OPSET = 17
 #: not square, and a multiple of 4 neither in H nor in W).
 EXPORT_SIZE = (64, 64)
 CHECK_SIZE = (54, 78)
-#: Band height of the export's banded-stage check: several bands, each less than a halo tall
-#: above and below, at :data:`CHECK_SIZE`.
-BAND_ROWS_CHECK = 5
 #: Max relative error of the float32 graph vs torch float64, see :func:`parity_error`.
 PARITY_TOL = 1e-4
 #: ... or this many times torch float32's own error vs float64, if that is larger.
@@ -140,13 +134,8 @@ def tidy_graph(graph) -> None:
 
 
 def _stage_entry(model, stage: str) -> dict:
-    """A contract stage: name, node prefix, and the halo a row-local stage declares
-    (``model.stage_halo``; the driver may then run it in bands, :mod:`runtime.bands`)."""
-    entry = {"name": stage, "node_prefix": node_prefix(stage)}
-    halo = model.stage_halo(stage) if hasattr(model, "stage_halo") else None
-    if halo is not None:
-        entry["halo"] = int(halo)
-    return entry
+    """A contract stage: its name and node prefix."""
+    return {"name": stage, "node_prefix": node_prefix(stage)}
 
 
 def build_contract(spec, model, code_hash: str, export_info: dict | None = None) -> Contract:
@@ -212,39 +201,6 @@ def parity_ok(errors: dict[str, tuple[float, float]], tol: float = PARITY_TOL) -
     return all(g <= max(tol, FLOAT32_MARGIN * t) for g, t in errors.values())
 
 
-def check_bands(model_bytes: bytes, contract: Contract, feeds: dict, whole: dict, name: str,
-                rows: int = BAND_ROWS_CHECK) -> None:
-    """A stage that declares a halo must give, run in bands of ``rows`` rows
-    (:class:`runtime.bands.BandedStage`), the whole graph's outputs ``whole`` to the bit on
-    ``feeds``; the runtime must also be able to cut the graph there.  Raises ExportError."""
-    import onnxruntime as ort
-
-    from mcdenoise.runtime.bands import BandedStage
-    from mcdenoise.runtime.graphcut import GraphCutError
-
-    if not any("halo" in s for s in contract.stages):
-        return
-
-    def make_session(model: bytes, intra):
-        so = ort.SessionOptions()
-        so.log_severity_level = 3
-        if intra:
-            so.intra_op_num_threads = intra
-        return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
-
-    try:
-        banded = BandedStage.build(model_bytes, contract, make_session, threads=2)
-    except GraphCutError as e:
-        raise ExportError(f"{name}: a stage declares a halo but the graph cannot be cut before it ({e})") from None
-    if banded is None:
-        raise ExportError(f"{name}: a stage declares a halo but the runtime would not run it in bands "
-                          f"(stages {contract.stage_names})")
-    outs, _ = banded.run(feeds, rows=rows)
-    for k, ref in whole.items():
-        if not np.array_equal(outs[k], ref):
-            raise ExportError(f"{name}: stage {banded.stage!r} in bands of {rows} rows (halo "
-                              f"{banded.halo}) differs from the whole graph in output {k!r} "
-                              f"(max abs difference {float(np.max(np.abs(outs[k] - ref))):.3g})")
 
 
 def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET, *,
@@ -316,8 +272,6 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
             proto.metadata_props.add(key=k, value=v)
         proto.producer_name = "mcdenoise"
         proto.doc_string = f"mcdenoise {spec.name} ({spec.type}): {spec.description}"
-        check_bands(proto.SerializeToString(), contract, check_feeds,
-                    dict(zip([o.name for o in sess.get_outputs()], sess.run(None, check_feeds))), spec.name)
         onnx.save(proto, str(tmp))
         onnx.checker.check_model(str(tmp), full_check=True)
         parse_contract({p.key: p.value for p in onnx.load(str(tmp), load_external_data=False).metadata_props})

@@ -18,7 +18,7 @@ from mcdenoise.runtime import data_path, timing
 from mcdenoise.runtime.args import add_threads
 from mcdenoise.runtime.denoiser import Denoiser
 from mcdenoise.runtime.frames import FrameError, frame_paths, read_frame, read_plain, write_png, write_rgb
-from mcdenoise.runtime.metrics import pixels, psnr
+from mcdenoise.training.metrics import pixels, psnr
 from mcdenoise.runtime.transfer import gamma
 
 DEFAULT_MODEL = data_path("models", "wskpn-3.onnx")
@@ -77,7 +77,7 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None,
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
         threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu", depth=None,
         autoexposure: bool = True) -> dict:
-    from mcdenoise.runtime.methods import PROVIDERS
+    from mcdenoise.training.methods import PROVIDERS
 
     den = Denoiser.load(model, threads=threads, profile=profile and device == "cpu",
                         providers=PROVIDERS[device], autoexposure=autoexposure)

@@ -27,12 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mcdenoise.runtime import bands as bands_mod, graphcut, timing, transfer
+from mcdenoise.runtime import timing, transfer
 from mcdenoise.runtime.contract import parse_contract
 from mcdenoise.runtime.frames import Frame, FrameError
 from mcdenoise.runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
 from mcdenoise.runtime.temporal import Protocol
-from mcdenoise.runtime import workers
 from mcdenoise.runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
 #: Guide layers stored for the consistency test, when the frame has them.
@@ -72,25 +71,10 @@ class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
     def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
-                 autoexposure: bool = True, driver_threads: int | None = None, helper: bool = True,
-                 bands: "bands_mod.BandedStage | None" = None):
+                 autoexposure: bool = True, driver_threads: int | None = None):
         self.session = session
-        #: The graph cut before its last stage, run in bands of rows (:mod:`runtime.bands`),
-        #: or None: every frame runs ``session``.
-        self.bands = bands
-        #: Indices into ``timings`` of the frames that ran ``session`` (the profiled ones).
-        self._whole_frames: list[int] = []
         #: Threads of the driver's own numpy stages (layer conversion, reprojection).
         self.driver_threads = default_threads() if driver_threads is None else max(1, int(driver_threads))
-        #: Allocator of the arrays the reprojection reads and writes: shared memory when two
-        #: driver threads may split it with the helper process (:mod:`runtime.workers`).
-        self._alloc = workers.shared_empty if helper and self.driver_threads == 2 and workers.SHARED_SUPPORTED \
-            else np.empty
-        # Only the layers the reprojection reads go to shared memory: its pages are 4 KB (no
-        # transparent huge pages for shared memory here), which cost the 720p preprocess about
-        # 1 ms per 3 channels when a frame's caches are cold.
-        self._plane_alloc = {name: self._alloc for name in
-                             (*GUIDE_LAYERS, "motion", *(a["layer"] for a in contract.accumulate))}
         self.autoexposure = autoexposure
         #: The current history's auto-exposure factor (set at its first frame; 1 when off).
         self.exposure = 1.0
@@ -123,7 +107,7 @@ class Denoiser:
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
-             driver_threads: int | None = None, helper: bool = True, banded: bool = True) -> "Denoiser":
+             driver_threads: int | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -132,15 +116,7 @@ class Denoiser:
           driver_threads: threads of the driver's numpy stages (None: ``threads`` when given,
             at most :data:`runtime.workers.MAX_DEFAULT_THREADS`; else
             :func:`runtime.workers.default_threads`).  The output does not depend on it.
-          helper: with two driver threads, split the reprojection with a helper process on
-            shared memory (Linux; :func:`runtime.workers.run_split`) instead of two threads,
-            which wait for each other's GIL.  The output does not depend on it.
-          banded: on the CPU provider, run a last stage that the model declares row-local
-            (a ``halo`` in its contract, e.g. WSKPN's reconstruction) in bands of rows on
-            driver threads (:mod:`runtime.bands`); frames then time their graph stages by wall
-            clock.  The output does not depend on it.
-          profile: record per-node times so :meth:`stage_table` can split the graph by stage
-            (frames that run whole; banded frames time their stages by wall clock).
+          profile: record per-node times so :meth:`stage_table` can split the graph by stage.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
@@ -180,24 +156,8 @@ class Denoiser:
             raise ModelFileError(f"{path}: {e}") from None
         if driver_threads is None and threads:
             driver_threads = min(threads, MAX_DEFAULT_THREADS)
-        banded_stage = None
-        if banded and sess.get_providers() == ["CPUExecutionProvider"]:
-            def make_session(model: bytes, intra: int | None):
-                opts = ort.SessionOptions()
-                opts.log_severity_level = 3
-                opts.add_session_config_entry("session.force_spinning_stop", "1")
-                if intra or threads:
-                    opts.intra_op_num_threads = intra or threads
-                return ort.InferenceSession(model, opts, providers=["CPUExecutionProvider"])
-            try:
-                with open(path, "rb") as fh:
-                    banded_stage = bands_mod.BandedStage.build(
-                        fh.read(), contract, make_session,
-                        default_threads() if driver_threads is None else driver_threads)
-            except (graphcut.GraphCutError, OSError):
-                banded_stage = None       # not cuttable there: every frame runs the whole graph
         return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
-                   driver_threads=driver_threads, helper=helper, bands=banded_stage)
+                   driver_threads=driver_threads)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -248,7 +208,7 @@ class Denoiser:
                 if self._state is not None and self.exposure != 1.0 else None
             planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
                                   buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
-                                  alloc=self._plane_alloc, scale=exposed)
+                                  scale=exposed)
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
             if rep.total:
                 self.report.sanitized_frames += 1
@@ -268,12 +228,8 @@ class Denoiser:
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
         with tm.stage(timing.REPROJECT):
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
-        graph_stages = None
         with tm.stage(timing.GRAPH):
-            if self.bands is not None and self.bands.applies(h, w):
-                named, graph_stages = self.bands.run(feeds)
-            else:
-                named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
+            named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
         with tm.stage(timing.POSTPROCESS):
             out = named["output"][0]                                   # (3, H, W)
             inv = np.float32(1.0 / self.exposure)
@@ -307,10 +263,6 @@ class Denoiser:
                 self._state = self.protocol.update(accumulated, named, keep=self._keep)
                 self._guides, self._guides_set = guides, buffer_set
         tm.ms[timing.TOTAL] = sum(v for k, v in tm.ms.items())
-        if graph_stages is None:
-            self._whole_frames.append(len(self.timings))
-        else:
-            tm.ms.update(graph_stages)
         self.timings.append(tm.ms)
         self.frame_sizes.append((h, w))
         self.report.frames += 1
@@ -324,16 +276,13 @@ class Denoiser:
             g["depth"] = np.ones((1, 1, *fr.size), np.float32)
         return g
 
-    def _keep(self, arr: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _keep(arr: np.ndarray) -> np.ndarray:
         """A state output as the history keeps it: float32, non-finite values 0 (they must never
-        reach the next frame), in shared memory when the helper process reprojects it."""
+        reach the next frame)."""
         arr = arr.astype(np.float32, copy=False)
         if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
             arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
-        if self._alloc is not np.empty:
-            shared = self._alloc(arr.shape, arr.dtype)
-            np.copyto(shared, arr)
-            arr = shared
         return arr
 
     def _state_inputs(self, motion, guides, h: int, w: int, feeds: dict) -> dict[str, np.ndarray]:
@@ -350,9 +299,7 @@ class Denoiser:
             motion = np.zeros((1, 2, h, w), np.float32)
         kept = self.protocol.follow(feeds, self._state, motion, guides, self._guides,
                                     contiguous=lambda a: np.ascontiguousarray(a, dtype=np.float32),
-                                    threads=self.driver_threads, alloc=self._alloc)
-        if workers.helper_problem and self._alloc is workers.shared_empty:
-            self._say(workers.helper_problem, once_key="helper")
+                                    threads=self.driver_threads)
         return kept
 
     # ------------------------------------------------------------------ timing
@@ -365,8 +312,8 @@ class Denoiser:
             if self._profile_rows is None:
                 path = self.session.end_profiling()
                 self._profile_rows = timing.graph_stage_times(path, self.graph_stages)
-            for i, g in zip(self._whole_frames, self._profile_rows):
-                rows[i].update(g)
+            for row, g in zip(rows, self._profile_rows):
+                row.update(g)
         return rows
 
     def timed_frames(self, skip: int = 1) -> tuple[list[dict[str, float]], tuple[int, int] | None, int]:

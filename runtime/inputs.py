@@ -183,15 +183,14 @@ _TRANSPOSE_ROWS = 64
 
 
 def to_planes(arr: np.ndarray, out: np.ndarray | None = None, extrema: list | None = None,
-              alloc=None, scale=None) -> np.ndarray:
+              scale=None) -> np.ndarray:
     """(H, W, C) image layer -> contiguous float32 (1, C, H, W) array: ``out`` when given (of
-    that shape and dtype), else a new one from ``alloc(shape, dtype)`` (default ``np.empty``),
-    times ``scale`` (a float32 scalar) when given.  ``extrema``: a list that receives
+    that shape and dtype), else a new one, times ``scale`` (a float32 scalar) when given.  ``extrema``: a list that receives
     [min, max] of the values written (NaN when there is a NaN), taken block by block while the
     block is in cache."""
     h, w, c = arr.shape
     if out is None or out.shape != (1, c, h, w) or out.dtype != np.float32:
-        out = (alloc or np.empty)((1, c, h, w), np.float32)
+        out = np.empty((1, c, h, w), np.float32)
     los, his = [], []
     for y in range(0, h, _TRANSPOSE_ROWS):
         block = out[0, :, y:y + _TRANSPOSE_ROWS]
@@ -249,15 +248,13 @@ def from_planes(chw: np.ndarray, scale=None, threads: int = 1, extrema: list | N
 
 
 def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
-                 buffers: dict | None = None, threads: int = 1, alloc=None,
+                 buffers: dict | None = None, threads: int = 1,
                  scale: dict | None = None) -> dict[str, np.ndarray]:
     """Layers ``names`` of ``frame`` as a dict name -> sanitised (1, C, H, W) float32 arrays,
     in the frame's own spaces (normals in world space).  ``buffers`` (name -> array, updated
     here) lets a caller reuse last time's arrays, which at 720p saves the page faults of fresh
     11 MB blocks (~2 ms a layer).  ``threads`` > 1 converts layers on worker threads
-    (:mod:`runtime.workers`); sanitising and its report stay on the calling thread.  New
-    arrays come from ``alloc(shape, dtype)`` (default ``np.empty``), or from ``alloc[name]``
-    when ``alloc`` is a dict (``np.empty`` for a name it lacks).  ``scale``: name -> positive
+    (:mod:`runtime.workers`); sanitising and its report stay on the calling thread.  ``scale``: name -> positive
     float32 factor a layer is multiplied by on the way (the driver's auto-exposure: one pass
     fewer over the colour); the result is that of sanitising first and scaling after.
     Raises FrameError naming the frame and the missing layer."""
@@ -266,8 +263,7 @@ def frame_planes(frame: Frame, names, report: SanitizeReport | None = None,
 
     def convert(name, arr):
         ext: list = []
-        make = alloc.get(name) if isinstance(alloc, dict) else alloc
-        return to_planes(arr, None if buffers is None else buffers.get(name), ext, make, scales.get(name)), ext
+        return to_planes(arr, None if buffers is None else buffers.get(name), ext, scales.get(name)), ext
 
     scales = scale or {}
 

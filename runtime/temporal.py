@@ -36,23 +36,14 @@ DEPTH_TOLERANCE = 0.1
 MIN_WEIGHT = 1e-3
 
 
-#: numpy processes this many output rows at a time (all four taps of a band stacked), so a
-#: band's temporaries stay near the core.  1280x720, one thread: 8 rows 61 ms, 16 rows 61,
-#: 24 rows 62; split with the helper process, frames interleaved with Open Image Denoise as
-#: in ``mcdenoise bench`` (two runs): 8 rows 40.3 / 39.4 ms, 12 rows 39.9 / 39.9, 16 rows
-#: 43.3 / 42.3, 24 rows 44.6 / 44.5.
+#: numpy processes this many output rows at a time on one thread (all four taps of a band
+#: stacked), so a band's temporaries stay near the core (1280x720: 8 rows 61 ms, 16 rows 61,
+#: 24 rows 62).
 BAND_ROWS = 12
 #: Band height (about) when worker threads share the frame: each numpy call must do enough
-#: work to pay for taking the GIL back.  1280x720, 2 threads each taking 360 rows, this
-#: machine's 2 cores: 16-row bands 49 ms, 30 rows 42, 45 rows 42, 60 rows 44, 90 rows 52.
-#: Split with the helper process (:func:`runtime.workers.run_split`, no GIL to share) the
-#: one-thread height :data:`BAND_ROWS` is best (isolated: 8 rows 38 ms, 16 rows 36, 30 rows
-#: 40, 45 rows 46).
+#: work to pay for taking the GIL back (1280x720, 2 threads each taking 360 rows: 16-row bands
+#: 49 ms, 30 rows 42, 45 rows 42, 60 rows 44, 90 rows 52).
 THREADED_BAND_ROWS = 45
-#: Frames smaller than this (pixels per image) stay on threads: the helper process's hand-off
-#: costs more than it saves there (wskpn-3, two threads, interleaved: 160x120 3.5 ms on
-#: threads, 4.3 with the helper; 256x256 9.2 and 5.8).
-HELPER_MIN_PIXELS = 1 << 15
 
 
 @dataclass(frozen=True)
@@ -176,7 +167,7 @@ def _keep(alpha: float, like):
     return np.float32(1.0 - alpha) if isinstance(like, np.ndarray) and like.dtype == np.float32 else 1.0 - alpha
 
 
-def reproject(states, motion, cur: dict, prev: dict, threads: int = 1, blend=None, alloc=None):
+def reproject(states, motion, cur: dict, prev: dict, threads: int = 1, blend=None):
     """Warp ``states`` from frame t-1 to frame t and compute the history mask.
 
     Args:
@@ -189,9 +180,6 @@ def reproject(states, motion, cur: dict, prev: dict, threads: int = 1, blend=Non
       blend: None, or per state None or (current (N, C_i, H, W), alpha): that state is returned
         as :func:`accumulate` (current, warped, history, alpha) (numpy: computed band by band
         while the warped values are in cache, to the bit the same).
-      alloc: numpy only: ``alloc(shape, dtype)`` makes the returned arrays (default
-        ``np.empty``).  With :func:`runtime.workers.shared_empty`, and every input in shared
-        memory too, two ``threads`` split the rows with the helper process instead.
 
     Returns:
       (warped states list, history (N, 1, H, W) in {0, 1}).  Inconsistent or off-screen taps are
@@ -205,7 +193,7 @@ def reproject(states, motion, cur: dict, prev: dict, threads: int = 1, blend=Non
     if len(blend) != len(states):
         raise ValueError(f"blend: {len(blend)} entries for {len(states)} states")
     if xp(motion) is np:
-        return _reproject_numpy(states, motion, cur, prev, use_pos, use_nrm, threads, blend, alloc)
+        return _reproject_numpy(states, motion, cur, prev, use_pos, use_nrm, threads, blend)
     n, _, h, w = motion.shape
     # One gather per tap for every field: the guides and all states stacked along channels.
     fields = ([prev["depth"]] + ([prev["position"]] if use_pos else []) + ([prev["normal"]] if use_nrm else [])
@@ -225,8 +213,7 @@ def _split_states(acc, states):
     return warped
 
 
-def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, threads: int = 1, blend=(),
-                     alloc=None):
+def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, threads: int = 1, blend=()):
     """numpy :func:`reproject`: the arithmetic of :func:`_reproject_rows`, laid out for speed
     on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 165 ms
     with per-tap gathers of a stacked (C, H*W) array over 32-row bands on two threads, 125 ms
@@ -250,18 +237,13 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
     * A blended state (:func:`accumulate`) is blended band by band while its warped values
       are in cache: 1280x720, 3 channels, 2 threads: +2 ms here instead of a 6 ms stage of
       full-frame passes in the model graph.
-    * With every array in shared memory, two ``threads`` are this process and the helper
-      process (:func:`runtime.workers.run_split`): 36 ms instead of 50-52 on threads.
     """
     n, _, h, w = motion.shape
     n_state = sum(st.shape[1] for st in states)
     dtype = np.result_type(*[st.dtype for st in states]) if states else motion.dtype
-    alloc = alloc or np.empty
-    acc = alloc((n, n_state, h, w), dtype)
-    history = alloc((n, 1, h, w), motion.dtype)
-    split = threads == 2 and h * w >= HELPER_MIN_PIXELS and workers.helper_usable() and workers.shareable(
-        [states, motion, cur, prev, acc, history] + [bl[0] for bl in blend or () if bl is not None])
-    band = THREADED_BAND_ROWS if threads > 1 and not split else BAND_ROWS
+    acc = np.empty((n, n_state, h, w), dtype)
+    history = np.empty((n, 1, h, w), motion.dtype)
+    band = THREADED_BAND_ROWS if threads > 1 else BAND_ROWS
     # Each thread takes an equal share of the rows, cut into equal bands of about ``band``
     # rows (whole 64-row bands split 720 rows 384/336: 4 ms slower).  No result depends on
     # the partition: every pixel sums its own four taps in the same order (a skipped tap
@@ -278,7 +260,7 @@ def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, th
                for st, bl in zip(states, blend or [None] * len(states)) for c in range(st.shape[1])]
         args = (b, guides, planes, mix, motion, cur, use_pos, use_nrm, acc, history)
         jobs = [(*args, y, min(h, y + share), band) for y in range(0, h, share)]
-        (workers.run_split if split else workers.run_all)(_reproject_band_rows, jobs, threads)
+        workers.run_all(_reproject_band_rows, jobs, threads)
     return _split_states(acc, states), history
 
 

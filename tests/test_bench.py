@@ -9,8 +9,8 @@ import pytest
 from onnx import TensorProto, helper
 
 from mcdenoise.runtime.cli import main as cli_main
-from mcdenoise.runtime.flops import count_flops, cpu_peak
-from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training.flops import count_flops, cpu_peak
+from mcdenoise.training.methods import shipped_models
 from mcdenoise.training import bench, harness, scoring
 
 
@@ -192,7 +192,7 @@ def test_score_pools_frames_of_several_sizes():
     """evaluate's score: frames of one size give the metrics of their stacks exactly; frames
     of several sizes pool as one size does (PSNR/SMAPE/relMSE over all pixels, SSIM over all
     window positions, FLIP over all pixels) and TRMAE runs over equal-sized frames."""
-    from mcdenoise.runtime import metrics
+    from mcdenoise.training import metrics
     from mcdenoise.training.scoring import score
 
     rng = np.random.default_rng(3)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from mcdenoise.runtime import metrics as M
+from mcdenoise.training import metrics as M
 from mcdenoise.runtime import transfer as T
 
 

@@ -14,7 +14,7 @@ import torch
 from mcdenoise.runtime.denoiser import Denoiser, ModelFileError
 from mcdenoise.runtime.frames import Frame, FrameError, read_frame, read_rgb, write_frame
 from mcdenoise.runtime.inputs import frame_inputs
-from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training.methods import shipped_models
 from mcdenoise.training.harness import synthetic_frame
 
 SPEC = "wskpn-3"
@@ -210,22 +210,6 @@ def test_stage_table_charges_each_conv_to_its_own_stage(path):
     assert want and got == want
 
 
-@pytest.mark.parametrize("path", shipped_models(), ids=os.path.basename)
-def test_shipped_models_declare_what_runs_in_bands(path):
-    """The shipped wskpn files declare their reconstruction's halo (largest kernel // 2) and
-    load with it banded on the CPU; the nbg files declare none and run whole."""
-    from mcdenoise.training.specs import tomllib
-
-    den = Denoiser.load(path, log=lambda m: None)
-    spec = tomllib.loads(den.contract.spec_toml)
-    halos = {s["name"]: s.get("halo") for s in den.contract.stages}
-    if den.contract.model_type == "wskpn":
-        assert halos == {"prediction": None, "reconstruction": max(spec["params"]["kernel_sizes"]) // 2}
-        assert den.bands is not None and den.bands.stage == "reconstruction"
-    else:
-        assert set(halos.values()) == {None} and den.bands is None
-
-
 def test_denoise_command_on_a_sequence(model_file, tmp_path):
     from mcdenoise.runtime.cli import main
 
@@ -251,7 +235,7 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
 
     from mcdenoise.runtime.cli import main
     from mcdenoise.runtime.denoise import run
-    from mcdenoise.runtime.metrics import psnr
+    from mcdenoise.training.metrics import psnr
 
     path, _, _ = model_file
     sizes = {"a": [(24, 20), (24, 20), (24, 20), (30, 16)], "b": [(18, 22)]}
@@ -272,7 +256,7 @@ def test_denoise_command_across_resolutions(model_file, tmp_path, capsys):
         for t in range(len(wh)):
             outs.append(read_rgb(tmp_path / "out" / seq / f"frame_{t:04d}.exr"))
             refs.append(read_frame(tmp_path / seq / f"frame_{t:04d}.exr").reference)
-    from mcdenoise.runtime.metrics import pixels as flat
+    from mcdenoise.training.metrics import pixels as flat
     assert res["psnr_db"] == pytest.approx(psnr(flat(outs), flat(refs)), rel=1e-9)
     # ... and each frame's pixels count once: not the mean of per-frame or per-size PSNRs.
     assert res["psnr_db"] != pytest.approx(np.mean([psnr(o, r) for o, r in zip(outs, refs)]), rel=1e-6)
@@ -490,29 +474,19 @@ def test_from_planes_split_rows_give_the_same_image_and_extrema(monkeypatch, spl
         assert (np.isnan(ext[0]) and np.isnan(ext[1])) if np.isnan(value) else ext[0] == value
 
 
-def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
-    """One driver thread, two threads, two with the helper process (rows split across
-    processes on shared memory, Linux), or three: the same images, to the bit, over a
-    sequence with history, a NaN and a negative value."""
-    import mcdenoise.runtime.temporal
-    from mcdenoise.runtime import workers
-
-    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
-
+def test_driver_threads_do_not_change_the_output(model_file):
+    """One, two or three driver threads: the same images, to the bit, over a sequence with
+    history, a NaN and a negative value."""
     path, _, _ = model_file
     outs = {}
-    for threads, helper in ((1, False), (2, False), (2, True), (3, False)):
-        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads, helper=helper)
+    for threads in (1, 2, 3):
+        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads)
         assert den.driver_threads == threads
         frames = [_frame(t, 40, 150) for t in range(3)]
         frames[1].color[5, 7, 1] = np.nan
         frames[2].color[9, 3, 0] = -4.0
-        outs[threads, helper] = ([den(f) for f in frames], den.report.sanitized_frames)
-        if helper and workers.SHARED_SUPPORTED:
-            # Everything the reprojection reads is in shared memory, so the helper took half.
-            assert all(workers.is_shared(a) for a in den._state.values()) and workers.helper_usable()
-            assert not any("helper" in m for m in den.report.messages)
-    ref = outs[1, False]
+        outs[threads] = ([den(f) for f in frames], den.report.sanitized_frames)
+    ref = outs[1]
     assert ref[1] == 2
     for key, (images, sanitized) in outs.items():
         assert sanitized == 2, key
@@ -520,55 +494,17 @@ def test_driver_threads_do_not_change_the_output(model_file, monkeypatch):
             np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.skipif(not __import__("mcdenoise.runtime.workers").runtime.workers.SHARED_SUPPORTED, reason="Linux memfd")
-def test_a_lost_helper_process_is_said_once_and_changes_nothing(model_file, monkeypatch):
-    import mcdenoise.runtime.temporal
-    from mcdenoise.runtime import workers
-
-    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
-    monkeypatch.setattr(workers, "helper_problem", None)
-    workers.stop_helper()
-    path, _, _ = model_file
-    frames = [_frame(t, 40, 64) for t in range(4)]
-    ref = Denoiser.load(path, log=lambda m: None, driver_threads=1)
-    want = [ref(f) for f in frames]
-    said = []
-    den = Denoiser.load(path, log=said.append, driver_threads=2, helper=True)
-    try:
-        got = [den(frames[0]), den(frames[1])]
-        assert workers._helper is not None          # frame 1 reprojected with the helper
-        workers._helper.proc.kill()
-        workers._helper.proc.wait()
-        got += [den(frames[2]), den(frames[3])]
-    finally:
-        workers.stop_helper()
-    for a, b in zip(want, got):
-        np.testing.assert_array_equal(a, b)
-    assert len([m for m in said if "helper process failed" in m]) == 1, said
-
-
-@pytest.mark.skipif(not __import__("mcdenoise.runtime.workers").runtime.workers.SHARED_SUPPORTED, reason="Linux memfd")
-def test_helper_process_across_resolution_changes_and_closed_segments(model_file, monkeypatch):
-    """With the helper, a sequence whose resolution changes twice (new shared buffers, the old
-    ones closed at once and unmapped in the helper) gives what one thread gives, to the bit."""
-    import mcdenoise.runtime.temporal
-    from mcdenoise.runtime import workers
-
-    monkeypatch.setattr(mcdenoise.runtime.temporal, "HELPER_MIN_PIXELS", 0)
-    monkeypatch.setattr(workers, "KEEP_FREE_BYTES", 0)
-    monkeypatch.setattr(workers, "helper_problem", None)
+def test_driver_threads_across_resolution_changes(model_file):
+    """A sequence whose resolution changes twice (new buffers, state reset each time) gives on
+    two driver threads what one thread gives, to the bit."""
     path, _, _ = model_file
     frames = [_frame(t, 40, 64) for t in range(3)] + [_frame(t, 32, 48) for t in range(3, 6)] \
         + [_frame(t, 40, 64) for t in range(6, 8)]
     ref = Denoiser.load(path, log=lambda m: None, driver_threads=1)
-    den = Denoiser.load(path, log=lambda m: None, driver_threads=2, helper=True)
-    try:
-        for f in frames:
-            np.testing.assert_array_equal(den(f), ref(f))
-        assert workers._helper is not None and workers.helper_problem is None
-        assert len(den.report.resets) == len(ref.report.resets) == 2
-    finally:
-        workers.stop_helper()
+    den = Denoiser.load(path, log=lambda m: None, driver_threads=2)
+    for f in frames:
+        np.testing.assert_array_equal(den(f), ref(f))
+    assert len(den.report.resets) == len(ref.report.resets) == 2
 
 
 def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkeypatch):
@@ -624,62 +560,3 @@ def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file):
     assert any("non-finite values; replaced by the input" in m for m in msgs)
     den.session.run = real
     assert np.isfinite(den(frames[2])).all() and den._state is not None
-
-
-def test_last_stage_in_bands_gives_the_whole_graph_to_the_bit(model_file, monkeypatch):
-    """A model whose last stage declares a halo (wskpn: the reconstruction) runs it in bands
-    of rows on one-thread sessions: the same images to the bit as the whole graph, on one or
-    two driver threads, over a sequence with history and a resolution change; its frames
-    time both graph stages by wall clock, frames too small for bands run whole."""
-    from mcdenoise.runtime import bands
-
-    path, spec, _ = model_file
-    monkeypatch.setattr(bands, "MIN_PIXELS", 40 * 100)
-    monkeypatch.setattr(bands, "BAND_ROWS", 7)
-    frames = [_frame(t, 40, 150) for t in range(3)] + [_frame(t, 40, 60) for t in range(3, 5)] \
-        + [_frame(5, 40, 99)]
-    whole = Denoiser.load(path, log=lambda m: None, banded=False, profile=True)
-    want = [whole(f) for f in frames]
-    assert whole.bands is None
-    for threads in (1, 2):
-        den = Denoiser.load(path, log=lambda m: None, driver_threads=threads, profile=True)
-        if spec.type != "wskpn":
-            assert den.bands is None           # nbg's stages read the whole frame
-            return
-        assert den.bands is not None and den.bands.halo == max(spec.params["kernel_sizes"]) // 2
-        for f, ref in zip(frames, want):
-            np.testing.assert_array_equal(den(f), ref)
-        rows = den.stage_times()
-        assert len(rows) == len(frames)
-        for f, r in zip(frames, rows):
-            # 40x60 is below MIN_PIXELS: whole graph, stage rows from the profiler; the others
-            # ran in bands, stage rows by wall clock within the graph's wall time.
-            assert all(r[s] > 0 for s in spec.stages), r
-            if f.color.shape[0] != 60:
-                assert r["prediction"] + r["reconstruction"] <= r["graph (wall)"] + 1e-6
-
-
-def test_banded_stage_refuses_a_halo_too_small(model_file):
-    """The export checks a declared halo by running the stage in bands: one row short of what
-    the box filters read gives a different image, which the check reports."""
-    from dataclasses import replace
-
-    from mcdenoise.export.onnx_export import ExportError, check_bands
-    from mcdenoise.runtime.contract import parse_contract
-
-    import onnxruntime as ort
-
-    path, spec, _ = model_file
-    data = path.read_bytes()
-    sess = ort.InferenceSession(data, providers=["CPUExecutionProvider"])
-    contract = parse_contract(sess.get_modelmeta().custom_metadata_map)
-    if spec.type != "wskpn":
-        assert not any("halo" in s for s in contract.stages)   # nbg's stages read the whole frame
-        return
-    feeds = {i.name: np.random.default_rng(1).random((1, i.shape[1], 30, 26), dtype=np.float32)
-             for i in sess.get_inputs()}
-    whole = dict(zip([o.name for o in sess.get_outputs()], sess.run(None, feeds)))
-    check_bands(data, contract, feeds, whole, spec.name, rows=4)
-    short = replace(contract, stages=(contract.stages[0], {**contract.stages[1], "halo": contract.stages[1]["halo"] - 1}))
-    with pytest.raises(ExportError, match="differs from the whole graph"):
-        check_bands(data, short, feeds, whole, spec.name, rows=4)

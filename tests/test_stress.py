@@ -11,7 +11,7 @@ import pytest
 
 from mcdenoise.runtime.cli import main as cli_main
 from mcdenoise.runtime.frames import SAMPLE_GROUPS, read_frame
-from mcdenoise.runtime.methods import shipped_models
+from mcdenoise.training.methods import shipped_models
 from mcdenoise.training import report, stress, testsets
 from mcdenoise.training.render import procedural
 

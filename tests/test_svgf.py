@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from mcdenoise.runtime.frames import read_frame
-from mcdenoise.runtime.methods import load_method
-from mcdenoise.runtime.metrics import psnr
-from mcdenoise.runtime.svgf import ALBEDO_EPS, SVGF
+from mcdenoise.training.methods import load_method
+from mcdenoise.training.metrics import psnr
+from mcdenoise.training.svgf import ALBEDO_EPS, SVGF
 
 
 def _plane(h=64, w=64, depth=2.0):

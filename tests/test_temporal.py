@@ -275,7 +275,7 @@ def test_protocol_runs_the_same_on_numpy_and_torch(name):
 
 def test_shipped_files_and_their_specs_declare_the_same_protocol():
     from mcdenoise.runtime.denoiser import Denoiser
-    from mcdenoise.runtime.methods import shipped_models
+    from mcdenoise.training.methods import shipped_models
     from mcdenoise.training.specs import parse_spec
 
     for path in shipped_models():

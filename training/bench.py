@@ -1,6 +1,6 @@
 """``mcdenoise bench``: quality, speed and compute of every method, in one run.
 
-Methods (:mod:`runtime.methods`): every shipped model (the onnxruntime driver), Open Image
+Methods (:mod:`training.methods`): every shipped model (the onnxruntime driver), Open Image
 Denoise (``pyoidn``, colour + albedo + normal, quality high and fast), the SVGF-style classical
 temporal filter (``svgf``, the non-neural baseline) and the noisy input.
 
@@ -20,9 +20,9 @@ of the onnxruntime driver (profiled: graph stages get their own rows) and of tor
 (forward hooks), whole frame ms of OIDN and SVGF, at each ``--sizes``, all methods
 interleaved frame by frame (:func:`training.harness.time_interleaved`); the noisy input costs 0 ms.
 
-*Compute*: FLOPs/FMAs and parameters of each model at each size (:mod:`runtime.flops`), the
+*Compute*: FLOPs/FMAs and parameters of each model at each size (:mod:`training.flops`), the
 achieved GFLOP/s (FLOPs / graph wall time) against this CPU's peak
-(:func:`runtime.flops.cpu_peak`); Open Image Denoise's published U-Net counted from its layer
+(:func:`training.flops.cpu_peak`); Open Image Denoise's published U-Net counted from its layer
 table (:data:`training.harness.OIDN_UNET`).
 
 Writes under ``--out``: ``bench.md`` (all tables, the charts linked), ``bench.csv`` (per-stage
@@ -67,7 +67,7 @@ SEQUENCE_SPP = (1, 4)
 # ------------------------------------------------------------------------------------------
 
 def _model_paths(models) -> list[str]:
-    from mcdenoise.runtime.methods import shipped_models
+    from mcdenoise.training.methods import shipped_models
 
     models = list(models) or shipped_models()
     if not models:
@@ -85,7 +85,7 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     :data:`STILLS` / :data:`SEQUENCES`; with ``quick``, ``data`` serves both, else :data:`QUICK`).
     """
     from mcdenoise.runtime.denoiser import Denoiser
-    from mcdenoise.runtime.methods import check_distinct
+    from mcdenoise.training.methods import check_distinct
 
     t_start = time.perf_counter()
     models = _model_paths(models)
@@ -116,7 +116,7 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
 
 
 def quality_part(models, builtins, stills, data, quick, threads, log):
-    from mcdenoise.runtime.methods import load_method
+    from mcdenoise.training.methods import load_method
 
     def rendered(ts: TestSet, given: str | None) -> tuple[str, float | None]:
         if given:
@@ -202,7 +202,7 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
 def flops_part(names: dict, sizes, log, device="cpu"):
     """FLOP counts of every model (``names``: path -> spec name) at each size and 1280x720,
     Open Image Denoise's published U-Net, and this CPU's peak."""
-    from mcdenoise.runtime.flops import count_flops, cpu_peak
+    from mcdenoise.training.flops import count_flops, cpu_peak
 
     peak = cpu_peak() if device == "cpu" else {"gflops": None, "assumptions": "GPU peak not stated"}
     out = {"peak": peak, "models": {}, "oidn": {}}

@@ -1,12 +1,12 @@
 """``mcdenoise evaluate METHOD... --data DIR``: quality on held-out sequences.
 
 Every method (an ONNX model file, ``noisy``, ``oidn-high``, ``oidn-fast``, ``svgf``: see
-:mod:`runtime.methods`) is run frame by frame over every sequence (temporal state included,
+:mod:`training.methods`) is run frame by frame over every sequence (temporal state included,
 reset between sequences), at ``--spp`` samples per pixel taken from the stored per-sample data
 (the first n samples; pixel layers recomputed with :func:`runtime.frames.pixel_means`).  With
 ``stills=True`` only each sequence's first frame is scored, after a reset (no history).
 
-Metrics from :mod:`runtime.metrics`: PSNR (ANF Eq. 14, over all frames), SSIM and FLIP, SMAPE,
+Metrics from :mod:`training.metrics`: PSNR (ANF Eq. 14, over all frames), SSIM and FLIP, SMAPE,
 relMSE over all frames, and TRMAE (mean over sequences of 2+ frames).  torch is not needed.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 
 from mcdenoise.runtime.args import add_data, add_threads
-from mcdenoise.runtime.methods import check_distinct, load_method
+from mcdenoise.training.methods import check_distinct, load_method
 from mcdenoise.training.scoring import run_methods
 from mcdenoise.training.testsets import read_sequences
 

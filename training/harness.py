@@ -28,7 +28,7 @@ OIDN_UNET = (("enc_conv0", "IC", 32, 1), ("enc_conv1", 32, 32, 1), ("enc_conv2",
 
 def oidn_unet_count(w: int, h: int, in_channels: int = 9) -> dict:
     """FMAs, FLOPs (2 per FMA + bias adds + ReLUs + pool compares, the rules of
-    :mod:`runtime.flops`) and parameters of :data:`OIDN_UNET` on a ``w`` x ``h`` image."""
+    :mod:`training.flops`) and parameters of :data:`OIDN_UNET` on a ``w`` x ``h`` image."""
     pw, ph = -(-w // 16) * 16, -(-h // 16) * 16
     fmas = flops = params = 0
     for name, cin, cout, div in OIDN_UNET:
@@ -76,7 +76,7 @@ def onnx_driver(path: str, threads: int, device: str = "cpu"):
     run asynchronously, so per-node times would be launch times; the graph row is the run()
     call, which returns only when the outputs are back on the host."""
     from mcdenoise.runtime.denoiser import Denoiser
-    from mcdenoise.runtime.methods import PROVIDERS
+    from mcdenoise.training.methods import PROVIDERS
 
     den = Denoiser.load(path, threads=threads, providers=PROVIDERS[device], profile=device == "cpu",
                         log=lambda m: None)
@@ -87,8 +87,8 @@ def onnx_driver(path: str, threads: int, device: str = "cpu"):
 
 
 def builtin_method(name: str, threads: int, device: str = "cpu"):
-    """A built-in method (:func:`runtime.methods.load_method`) for timing; None for ``noisy``."""
-    from mcdenoise.runtime.methods import load_method
+    """A built-in method (:func:`training.methods.load_method`) for timing; None for ``noisy``."""
+    from mcdenoise.training.methods import load_method
 
     if name == "noisy":
         return None
@@ -127,7 +127,7 @@ def oidn_cuda(quality: str):
     to and from the GPU are part of the cost, as they are for the onnxruntime driver."""
     import torch
 
-    from mcdenoise.runtime.methods import OIDN
+    from mcdenoise.training.methods import OIDN
 
     class OIDNCuda(OIDN):
         def _array(self, a):

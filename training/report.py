@@ -308,9 +308,7 @@ def bench_markdown(res) -> str:
           "SVGF and the noisy input: not counted (no ONNX graph).", ""]
     # per-model tables beside the paper
     L += ["## Per-stage time beside each paper's table", "",
-          "onnxruntime graph stages are profiler kernel sums, except for a model whose last stage the "
-          "driver runs in bands of rows (wskpn; `runtime/bands.py`), whose graph stages are wall clock "
-          "at sizes large enough for bands; driver stages (preprocess, reproject, "
+          "onnxruntime graph stages are profiler kernel sums; driver stages (preprocess, reproject, "
           "postprocess, state update) wall clock; 'graph (wall)' is the run() call, beside the papers' "
           "totals (network only). Paper numbers are on the paper's GPU.", ""]
     stage_rows = res["stage_rows"]

@@ -1,12 +1,12 @@
 """Scores of the measuring side, one definition each: :func:`score` (every metric of
-:mod:`runtime.metrics` over frames, pooled the same way for ``evaluate``, ``bench`` and
+:mod:`training.metrics` over frames, pooled the same way for ``evaluate``, ``bench`` and
 ``stress``), :func:`run_methods` (methods over sequences, then scored) and
 :func:`pareto_front` (the quality-vs-time front of the bench chart)."""
 from __future__ import annotations
 
 import numpy as np
 
-from mcdenoise.runtime import metrics
+from mcdenoise.training import metrics
 from mcdenoise.runtime.frames import Frame
 from mcdenoise.training.testsets import at_spp
 
@@ -67,7 +67,7 @@ def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]
 
 
 def run_methods(methods, seqs: list[list[Frame]], spp: int, log=print) -> dict:
-    """Run ``methods`` (method objects, see :mod:`runtime.methods`) over ``seqs`` at ``spp``;
+    """Run ``methods`` (method objects, see :mod:`training.methods`) over ``seqs`` at ``spp``;
     returns {method name: scores} (see :func:`score`).  Each sequence starts with a reset."""
     outs: dict[str, list] = {m.name: [] for m in methods}
     refs, lengths = [], []

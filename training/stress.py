@@ -1,6 +1,6 @@
 """``mcdenoise stress [METHOD...]``: how much each denoising method degrades on hard input.
 
-For every method (:func:`runtime.methods.load_method`: shipped ONNX models through the runtime
+For every method (:func:`training.methods.load_method`: shipped ONNX models through the runtime
 driver, Open Image Denoise, SVGF, the noisy input) and every *case*, the case is scored against
 its *clean counterpart* and the error increase is reported, with a PNG crop of the worst region.
 
@@ -31,7 +31,7 @@ Cases from rendered sets (``mcdenoise render``, held-out scene seeds ``STRESS_SE
 * ``glossy``: the floor is glossy silver (GGX alpha 0.05): large reflections whose motion
   vectors (which follow the first hit) are wrong (vs ``base``).
 
-Scores: PSNR (ANF Eq. 14) and relMSE (:mod:`runtime.metrics`) over all scored frames of a case,
+Scores: PSNR (ANF Eq. 14) and relMSE (:mod:`training.metrics`) over all scored frames of a case,
 with non-finite output values counted and set to 0 before scoring.  The failure rule is
 :func:`judge`.  Outputs: ``stress.md``, ``stress.csv`` and ``stress/<case>.png`` in ``--out``.
 """
@@ -396,7 +396,7 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
            threads: int = 0, seed: int = 0, command: str | None = None, log=print) -> dict:
     """Run the suite and write ``stress.md``, ``stress.csv`` and ``stress/<case>.png`` into
     ``out``.  Returns {"table": {(case, method): row}, "cases": [...], "methods": [...], ...}."""
-    from mcdenoise.runtime.methods import load_method, shipped_models
+    from mcdenoise.training.methods import load_method, shipped_models
 
     methods = list(methods) if methods else [*shipped_models(), *DEFAULT_EXTRA]
     started = time.perf_counter()

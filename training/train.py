@@ -24,7 +24,7 @@ import numpy as np
 from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
 from mcdenoise.runtime.contract import OUTPUT
 from mcdenoise.runtime.inputs import exposure_scale
-from mcdenoise.runtime.metrics import psnr, relmse, smape
+from mcdenoise.training.metrics import psnr, relmse, smape
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.transfer import gamma
 from mcdenoise.training import runs

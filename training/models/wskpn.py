@@ -494,18 +494,6 @@ class WSKPN(nn.Module):
         out = self.reconstruction(accum, t["albedo"], preds)
         return (out, accum) if self.temporal_enabled else (out,)
 
-    def stage_halo(self, stage: str) -> int | None:
-        """Rows of context above and below an output row that ``stage`` reads, when it is
-        row-local, so the driver may run it on bands of rows (:mod:`runtime.bands`); else None.
-
-        The single-level reconstruction is per-pixel operations and k×k box filters with zero
-        padding, so a band needs max(k) // 2 more rows each side.  With levels > 1 the 2×2
-        pooling and the padding to a multiple tie rows to the frame's grid: not declared.
-        """
-        if stage == "reconstruction" and self.params.levels == 1:
-            return max(self.params.kernel_sizes) // 2
-        return None
-
     @property
     def kernel_path(self) -> str:
         return self.reconstruction.kernel_path

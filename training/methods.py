@@ -13,7 +13,7 @@ A *method* is an object with
 :func:`load_method` builds one from a name: a path to an mcdenoise ``.onnx`` file (the
 runtime driver, :class:`runtime.denoiser.Denoiser`), ``noisy`` (the input itself),
 ``oidn-high`` / ``oidn-fast`` (Intel Open Image Denoise via ``pyoidn`` with albedo and normal,
-HDR), or ``svgf`` (the classical non-neural temporal filter, :mod:`runtime.svgf`).
+HDR), or ``svgf`` (the classical non-neural temporal filter, :mod:`training.svgf`).
 ``evaluate``, ``bench`` and ``stress`` all go through here, so a method is run the same way
 everywhere.  Only the runtime stack is needed (no torch); ``pyoidn`` only for OIDN.
 """
@@ -129,7 +129,7 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
     if name.startswith("oidn-"):
         return OIDN(name[len("oidn-"):])
     if name == "svgf":
-        from mcdenoise.runtime.svgf import SVGF
+        from mcdenoise.training.svgf import SVGF
 
         return SVGF()
     raise ValueError(f"unknown method {name!r}: give an .onnx file or one of {', '.join(BUILTIN)}")

@@ -176,7 +176,7 @@ def atrous_step(illum: np.ndarray, var: np.ndarray, depth: np.ndarray, grad: tup
 
 
 class SVGF:
-    """The SVGF-style baseline behind the method interface (:mod:`runtime.methods`).
+    """The SVGF-style baseline behind the method interface (:mod:`training.methods`).
 
     ``svgf(frame) -> (H, W, 3) float32`` linear HDR radiance; ``reset()`` forgets the history.
     The frame is a :class:`runtime.frames.Frame` or a dict of (H, W, C) layers; ``color`` is

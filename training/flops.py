@@ -1,6 +1,6 @@
 """FLOP / FMA and parameter counts of an ONNX graph at a concrete resolution.
 
-    from mcdenoise.runtime.flops import count_flops
+    from mcdenoise.training.flops import count_flops
     c = count_flops("models/wskpn-3.onnx", 1280, 720)
     c.flops, c.fmas, c.params, c.per_stage["prediction"]["flops"]
 
