@@ -267,7 +267,7 @@ def bench_markdown(res) -> str:
 
     # compute
     L += ["## Compute: FLOPs, parameters, achieved throughput", "",
-          f"Counting rules: `runtime/flops.py` (ONNX shape inference at the frame size; Conv FMAs = "
+          f"Counting rules: `training/flops.py` (ONNX shape inference at the frame size; Conv FMAs = "
           "N·Cout·Hout·Wout·Cin/groups·kh·kw, 1 FMA = 2 FLOPs, elementwise ops 1 FLOP per output "
           "element, pooling window size per output, reductions 1 per input element; data movement 0). "
           f"Achieved GFLOP/s = FLOPs / onnxruntime graph wall time of this run. CPU peak "
