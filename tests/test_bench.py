@@ -45,9 +45,17 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
         assert b"mcdenoise bench --quick" in data      # the command, in the PNG's metadata
     quality = _rows(out / "bench_quality.csv")
     assert {r["method"] for r in quality} == set(methods)
-    # tiny set: 4 stored spp -> stills at 1, 2, 4; sequences at 1 and 4
-    assert {(r["set"], r["spp"]) for r in quality} == {("stills", "1"), ("stills", "2"), ("stills", "4"),
-                                                       ("sequences", "1"), ("sequences", "4")}
+    # tiny set: 4 stored spp -> stills at 1, 2, 4; sequences at 1 and 4; the tiny set again
+    # standing in for the long sequences, with scores after a 1-frame warm-up
+    assert {(r["set"], r["spp"]) for r in quality} == {
+        ("stills", "1"), ("stills", "2"), ("stills", "4"), ("sequences", "1"), ("sequences", "4"),
+        *((s, spp) for s in ("long-quick", "long-quick after warm-up") for spp in ("1", "4"))}
+    after = {(r["method"], r["spp"]): r for r in quality if r["set"] == "long-quick after warm-up"}
+    full = {(r["method"], r["spp"]): r for r in quality if r["set"] == "long-quick"}
+    for key, r in after.items():
+        assert int(r["frames"]) == int(full[key]["frames"]) - 2        # 2 sequences, 1 frame each left out
+        assert float(r["wte"]) > 0 and float(full[key]["wte"]) > 0
+    assert "### Long sequences" in md and "after the first 1 of each sequence" in md
     for r in quality:
         assert np.isfinite(float(r["psnr"])) and r["flip"] and r["ssim"]
     psnr = {(r["method"], r["set"], r["spp"]): float(r["psnr"]) for r in quality}
@@ -205,7 +213,7 @@ def test_score_pools_frames_of_several_sizes():
     so, sr = np.stack(a_out), np.stack(a_ref)
     assert one == {"psnr": metrics.psnr(so, sr), "ssim": metrics.ssim(so, sr), "flip": metrics.flip(so, sr),
                    "smape": metrics.smape(so, sr), "relmse": metrics.relmse(so, sr),
-                   "trmae": metrics.trmae(so, sr), "frames": 3}
+                   "trmae": metrics.trmae(so, sr), "wte": None, "frames": 3}   # wte needs the frames
     # A second sequence that changes size after two frames; its last frame is exact, so it
     # pulls SSIM to 1 and FLIP to 0 in proportion to its window positions and pixels.
     b_out, b_ref = [img(16, 30), img(16, 30), img(14, 12)], [img(16, 30), img(16, 30), None]

@@ -177,3 +177,45 @@ def test_transfer_inverses_and_ranges():
     assert 0 <= T.reinhard_gamma(np.array([1e9]))[0] < 1.0
     with pytest.raises(KeyError, match="unknown transfer function 'srgbx'"):
         T.get("srgbx")
+
+
+def _moving_plane(t_len=4, h=12, w=16, seed=0):
+    """Frames of a textured plane sliding one pixel right per frame (exact integer motion),
+    with a reference = texture + small render noise."""
+    from mcdenoise.runtime.frames import Frame
+
+    rng = np.random.default_rng(seed)
+    tex = rng.random((h, w + t_len, 3)).astype(np.float32) + 0.5
+    frames = []
+    for t in range(t_len):
+        u = np.arange(w)[None, :] - t + t_len                 # texture column seen at pixel x
+        clean = tex[:, u[0]]
+        pos = np.stack([np.broadcast_to(u, (h, w)), np.broadcast_to(np.arange(h)[:, None], (h, w)),
+                        np.full((h, w), 10.0)], -1).astype(np.float32)
+        motion = np.zeros((h, w, 2), np.float32)
+        motion[..., 0] = -1.0                                  # pixel x showed at x - 1 in t - 1
+        valid = np.ones((h, w, 1), np.float32)
+        valid[:, 0] = 0.0
+        if t == 0:
+            valid[:] = 0.0
+        nrm = np.zeros((h, w, 3), np.float32)
+        nrm[..., 2] = -1.0
+        ref = clean * (1 + 0.02 * rng.standard_normal(clean.shape).astype(np.float32))
+        frames.append(Frame(color=ref, albedo=np.ones_like(ref), normal=nrm, depth=np.full((h, w, 1), 10.0, np.float32),
+                            position=pos, motion=motion, valid=valid, reference=ref, meta={}))
+    return frames, np.stack([tex[:, np.arange(w) - t + t_len] for t in range(t_len)])
+
+
+def test_warped_temporal_error_separates_flicker_from_steadiness():
+    frames, clean = _moving_plane()
+    refs = np.stack([f.reference for f in frames])
+    rng = np.random.default_rng(1)
+    assert M.warped_temporal_error(refs, refs, frames) == pytest.approx(1.0)
+    flicker = refs * (1 + 0.2 * rng.standard_normal(refs.shape).astype(np.float32))
+    assert M.warped_temporal_error(flicker, refs, frames) > 3.0
+    # The clean texture moving with the plane: steadier along the motion than the reference's
+    # render noise (an exact integer warp leaves no error at all).
+    p, r = M.warped_error_sums(clean, refs, frames)
+    assert r > 0 and p < 1e-6 * r
+    # One frame, or frames without motion: nothing to warp.
+    assert M.warped_temporal_error(refs[:1], refs[:1], frames[:1]) is None

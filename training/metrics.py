@@ -185,3 +185,49 @@ def flip(pred, ref) -> float:
                                              computeMeanError=True, parameters={"ppd": FLIP_PPD})
         errs.append(float(mean))
     return float(np.mean(errs))
+
+
+def warped_temporal_error(pred_seq, ref_seq, frames) -> float | None:
+    """Motion-compensated temporal error of a sequence, relative to the reference's: the
+    flicker (or lag) a viewer sees along the motion, where TRMAE compares frame differences
+    pixel by pixel. Σ_t prediction error / Σ_t reference error of
+    :func:`warped_error_sums`: 1 means as steady as the reference, more means flicker, less
+    means smoothed in time beyond the reference (lag, ghosting). None when no frame has a
+    warpable history (one frame, no motion vectors, nothing valid)."""
+    p, r = warped_error_sums(pred_seq, ref_seq, frames)
+    return None if r == 0 else p / r
+
+
+def warped_error_sums(pred_seq, ref_seq, frames) -> tuple[float, float]:
+    """(Σ prediction error, Σ reference error) of :func:`warped_temporal_error`.
+
+    For each frame t >= 1, frame t-1 is warped onto frame t along the true motion vectors with
+    the driver's reprojection and consistency test (:func:`runtime.temporal.reproject`, guides
+    from ``frames``), and the absolute differences of ANF Eq. 15-tonemapped values are summed
+    over the pixels with a consistent history there (and, when the frame has the renderer's
+    ``valid`` layer, visible in t-1), for the prediction and for the reference alike.
+
+    pred_seq, ref_seq: (T, H, W, 3) linear HDR; frames: the T :class:`runtime.frames.Frame`
+    (motion, depth, and position / normal when present)."""
+    from mcdenoise.runtime.temporal import reproject
+
+    def nchw(a):
+        return np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 0, 1)[None])
+
+    def guides(fr):
+        return {k: nchw(getattr(fr, k)) for k in ("depth", "position", "normal") if getattr(fr, k) is not None}
+
+    sums = [0.0, 0.0]
+    for t in range(1, len(frames)):
+        cur, prev = frames[t], frames[t - 1]
+        if cur.motion is None or cur.depth is None or prev.depth is None or cur.size != prev.size:
+            continue
+        motion = np.nan_to_num(nchw(cur.motion))
+        warped, hist = reproject([nchw(pred_seq[t - 1]), nchw(ref_seq[t - 1])], motion, guides(cur), guides(prev))
+        ok = hist[0, 0] > 0
+        if cur.valid is not None:
+            ok &= np.asarray(cur.valid)[..., 0] > 0
+        for k, (seq, w) in enumerate(zip((pred_seq, ref_seq), warped)):
+            e = np.abs(reinhard_gamma(np.asarray(seq[t], np.float32)) - reinhard_gamma(w[0].transpose(1, 2, 0)))
+            sums[k] += float(e[ok].sum())
+    return sums[0], sums[1]

@@ -81,7 +81,7 @@ def write_stage_csv(res, path):
 
 def write_quality_csv(res, path):
     size = "x".join(map(str, res["chart_size"]))
-    keys = ["method", "set", "spp", "psnr", "ssim", "flip", "smape", "relmse", "trmae", "frames",
+    keys = ["method", "set", "spp", "psnr", "ssim", "flip", "smape", "relmse", "trmae", "wte", "frames",
             "ms_per_frame", "timing_size"]
     with open(path, "w", newline="") as fh:
         _csv_header(fh, res)
@@ -89,8 +89,10 @@ def write_quality_csv(res, path):
         wr.writeheader()
         for (kind, spp), per in res["quality"].items():
             for m, v in per.items():
-                wr.writerow({"method": m, "set": kind, "spp": spp, **{k: v.get(k) for k in keys[3:10]},
-                             "ms_per_frame": res["frame_ms"].get((m, size)), "timing_size": size})
+                for label, row in ((kind, v), (kind + " after warm-up", v.get("after_warmup"))):
+                    if row:
+                        wr.writerow({"method": m, "set": label, "spp": spp, **{k: row.get(k) for k in keys[3:11]},
+                                     "ms_per_frame": res["frame_ms"].get((m, size)), "timing_size": size})
 
 
 def write_flops_csv(res, path):
@@ -203,6 +205,40 @@ def write_charts(res, out: Path) -> None:
     plt.close(fig)
 
 
+def _long_tables(res, order) -> list[str]:
+    """The long sequences' table per spp: PSNR over all frames and after the warm-up, TRMAE
+    and the warped temporal error after it, one column group per camera speed."""
+    q, ts = res["quality"], res["testsets"]
+    sets = [k for k in ts if isinstance(k, str) and k.startswith("long-")]
+    if not sets:
+        return []
+    first = ts[sets[0]]
+    L = ["### Long sequences", "",
+         f"{first['sequences']} sequences x {first['frames'] // max(1, first['sequences'])} frames at {first['size']} "
+         f"per camera speed ({', '.join(s[5:] for s in sets)}: " + ", ".join(f"`{ts[s]['folder']}`" for s in sets)
+         + f"; reference {first['ref_spp']} spp, scene seeds {_seeds(first['scene_seeds'])}), every method with its "
+         f"history, reset at each sequence's start. 'all': PSNR over every frame; 'after': over the frames after the "
+         f"first {first['warmup']} of each sequence, as a real-time user sees it, with TRMAE (ANF Eq. 16) and WTE, the "
+         "warped temporal error (`training.metrics.warped_temporal_error`: the previous output warped along the true "
+         "motion against the current, relative to the same for the reference; 1 is as steady as the reference, more "
+         "is flicker, less is lag) over the same frames.", ""]
+    spps = sorted({spp for (kind, spp) in q if kind in sets})
+    for spp in spps:
+        head = "| method | " + " | ".join(f"{s[5:]} PSNR all | after | TRMAE | WTE" for s in sets) + " |"
+        L += [f"{spp} spp:", "", head, "|---|" + "---:|" * (4 * len(sets))]
+        for m in order:
+            cells = []
+            for s in sets:
+                v = q.get((s, spp), {}).get(m)
+                a = (v or {}).get("after_warmup") or {}
+                cells += [_fmt((v or {}).get("psnr")), _fmt(a.get("psnr")), _fmt(a.get("trmae"), ".3f"),
+                          _fmt(a.get("wte"), ".3f")]
+            if any(c != "-" for c in cells):
+                L.append(f"| {m} | " + " | ".join(cells) + " |")
+        L.append("")
+    return L
+
+
 def bench_markdown(res) -> str:
     size = "x".join(map(str, res["chart_size"]))
     sizes = ["x".join(map(str, s)) for s in res["sizes"]]
@@ -254,15 +290,17 @@ def bench_markdown(res) -> str:
         L += [f"Quality part: stills {st['seconds']:.0f} s, sequences {sq['seconds']:.0f} s"
               + (f", test-set rendering {rs:.0f} s (once; reused afterwards)" if rs else
                  " (test sets reused, not rendered in this run)") + ".", ""]
+        L += _long_tables(res, order)
         L += ["### All metrics", ""]
         for (kind, spp), per in q.items():
-            L += [f"{kind}, {spp} spp:", "", "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+            L += [f"{kind}, {spp} spp:", "", "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE | WTE |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
             for m in order:
                 if m in per:
                     v = per[m]
                     L.append(f"| {m} | {v['psnr']:.2f} | {_fmt(v['ssim'], '.4f')} | {_fmt(v['flip'], '.4f')} | "
-                             f"{v['smape']:.4f} | {v['relmse']:.4f} | {_fmt(v['trmae'], '.4f')} |")
+                             f"{v['smape']:.4f} | {v['relmse']:.4f} | {_fmt(v['trmae'], '.4f')} | "
+                             f"{_fmt(v.get('wte'), '.3f')} |")
             L.append("")
 
     # compute

@@ -4,18 +4,21 @@
 :func:`pareto_front` (the quality-vs-time front of the bench chart)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mcdenoise.training import metrics
 from mcdenoise.runtime.frames import Frame
 from mcdenoise.training.testsets import at_spp
 
-#: Metric columns, in table order (TRMAE is per sequence, the others over all frames).
-METRICS = ("psnr", "ssim", "flip", "smape", "relmse", "trmae")
+#: Metric columns, in table order (TRMAE is per sequence, the others over all frames);
+#: "wte" (:func:`training.metrics.warped_temporal_error`) needs the frames' motion and guides.
+METRICS = ("psnr", "ssim", "flip", "smape", "relmse", "trmae", "wte")
 
 
 def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int],
-          which: tuple[str, ...] = METRICS) -> dict:
+          which: tuple[str, ...] = METRICS, frames: list[Frame] | None = None) -> dict:
     """Metrics ``which`` (default all of :data:`METRICS`) of frames ``outs`` against ``refs``
     ((H, W, 3) linear radiance; flat lists, sequences back to back with lengths
     ``seq_lengths``): {metric: value, ..., frames}.
@@ -23,7 +26,9 @@ def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]
     Frames may differ in size (sequences of several sizes, a sequence that changes
     resolution); every metric then pools as it does over frames of one size: PSNR, SMAPE and
     relMSE over all pixels, SSIM over all valid window positions, FLIP over all pixels, TRMAE
-    over the runs of equal-sized frames within each sequence (mean over runs)."""
+    over the runs of equal-sized frames within each sequence (mean over runs). The warped
+    temporal error ("wte") pools over every sequence (a ratio of sums) when ``frames`` (the
+    input frames, aligned with ``outs``) are given, else it is None."""
     if len(outs) != len(refs) or sum(seq_lengths) != len(outs):
         raise ValueError(f"score: {len(outs)} outputs, {len(refs)} references, sequences of "
                          f"{sum(seq_lengths)} frames")
@@ -62,25 +67,49 @@ def score(outs: list[np.ndarray], refs: list[np.ndarray], seq_lengths: list[int]
         start += n
     if "trmae" in which:
         res["trmae"] = float(np.mean(trm)) if trm else None
+    if "wte" in which:
+        res["wte"] = _wte(outs, refs, seq_lengths, frames) if frames is not None else None
     res["frames"] = len(outs)
     return res
 
 
-def run_methods(methods, seqs: list[list[Frame]], spp: int, log=print) -> dict:
+def _wte(outs, refs, seq_lengths, frames) -> float | None:
+    """:func:`training.metrics.warped_temporal_error` pooled over sequences (sums of errors)."""
+    num = den = 0.0
+    start = 0
+    for n in seq_lengths:
+        p, r = metrics.warped_error_sums(outs[start:start + n], refs[start:start + n], frames[start:start + n])
+        num, den, start = num + p, den + r, start + n
+    return None if den == 0 else num / den
+
+
+def run_methods(methods, seqs: list[list[Frame]], spp: int, log=print, warmup: int = 0) -> dict:
     """Run ``methods`` (method objects, see :mod:`training.methods`) over ``seqs`` at ``spp``;
-    returns {method name: scores} (see :func:`score`).  Each sequence starts with a reset."""
+    returns {method name: scores} (see :func:`score`).  Each sequence starts with a reset.
+
+    With ``warmup`` > 0 each method's scores gain ``"after_warmup"``: the same metrics over the
+    frames after the first ``warmup`` of every sequence, where a real-time user sees a history
+    in full swing (None when no sequence is longer than that)."""
     outs: dict[str, list] = {m.name: [] for m in methods}
-    refs, lengths = [], []
+    refs, lengths, inputs = [], [], []
     for frames in seqs:
         for m in methods:
             m.reset()
         for fr in frames:
             fr_n = at_spp(fr, spp)
             refs.append(fr_n.reference)
+            inputs.append(replace(fr_n, samples=None))   # motion and guides for "wte", no samples
             for m in methods:
                 outs[m.name].append(m(fr_n))
         lengths.append(len(frames))
-    return {name: score(o, refs, lengths) for name, o in outs.items()}
+    res = {name: score(o, refs, lengths, frames=inputs) for name, o in outs.items()}
+    if warmup:
+        keep = [i for i, t in enumerate(t for n in lengths for t in range(n)) if t >= warmup]
+        later = [max(0, n - warmup) for n in lengths]
+        for name, o in outs.items():
+            res[name]["after_warmup"] = score([o[i] for i in keep], [refs[i] for i in keep], later,
+                                              frames=[inputs[i] for i in keep]) if keep else None
+    return res
 
 
 def pareto_front(points: dict[str, tuple[float, float]]) -> list[str]:
