@@ -50,7 +50,7 @@ from mcdenoise.training.harness import (bench_torch, builtin_method, gpu_name, o
 from mcdenoise.training.report import rel_path, write_outputs
 from mcdenoise.training.scoring import run_methods
 from mcdenoise.training.testsets import (LONG_SEQUENCES, QUICK, SEQUENCES, STILLS, TestSet, ensure, read_sequences,
-                                         stored_spp)
+                                         reference_check, stored_spp)
 
 DEFAULT_SIZES = ("256x256", "1280x720")
 CHART_SIZE = "1280x720"
@@ -141,6 +141,8 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
             folder, secs = rendered(ts, seq_dir if quick else None)
             sets.append((f"long-{name}", folder, LONG_SPP, 1 if quick else LONG_WARMUP))
             rs.append(secs)
+            if not quick:   # are the references clean enough for the PSNR they measure?
+                testsets[f"long-{name}:reference_db"] = reference_check(ts, folder, log)["min_db"]
     testsets["render_s"] = sum(r or 0 for r in rs) if any(rs) else None
     methods = [load_method(n, threads=threads) for n in ["noisy"] + [b for b in builtins if b != "noisy"]]
     methods += [load_method(p, threads=threads) for p in models]

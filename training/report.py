@@ -209,7 +209,7 @@ def _long_tables(res, order) -> list[str]:
     """The long sequences' table per spp: PSNR over all frames and after the warm-up, TRMAE
     and the warped temporal error after it, one column group per camera speed."""
     q, ts = res["quality"], res["testsets"]
-    sets = [k for k in ts if isinstance(k, str) and k.startswith("long-")]
+    sets = [k for k in ts if isinstance(k, str) and k.startswith("long-") and ":" not in k]
     if not sets:
         return []
     first = ts[sets[0]]
@@ -221,7 +221,14 @@ def _long_tables(res, order) -> list[str]:
          f"first {first['warmup']} of each sequence, as a real-time user sees it, with TRMAE (ANF Eq. 16) and WTE, the "
          "warped temporal error (`training.metrics.warped_temporal_error`: the previous output warped along the true "
          "motion against the current, relative to the same for the reference; 1 is as steady as the reference, more "
-         "is flicker, less is lag) over the same frames.", ""]
+         "is flicker, less is lag) over the same frames."]
+    refs = {s: ts.get(f"{s}:reference_db") for s in sets}
+    if any(v is not None for v in refs.values()):
+        L[-1] += (" Reference check (`mcdenoise render ... --check-references`: a second reference of each first "
+                  "frame from independent seeds): the two agree to at least " + ", ".join(
+                      f"{v:.1f} dB ({s[5:]})" for s, v in refs.items() if v is not None)
+                  + "; a method's PSNR near that is limited by the reference, not the method.")
+    L.append("")
     spps = sorted({spp for (kind, spp) in q if kind in sets})
     for spp in spps:
         head = "| method | " + " | ".join(f"{s[5:]} PSNR all | after | TRMAE | WTE" for s in sets) + " |"

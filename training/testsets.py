@@ -132,6 +132,24 @@ def ensure(ts: TestSet, folder: str | None = None, render_missing: bool = True, 
     return folder, info
 
 
+def reference_check(ts: TestSet, folder: str | None = None, log=print) -> dict:
+    """How well two independent references of each sequence's first frame agree
+    (``mcdenoise render --check-references``, run once and kept in the folder): the JSON the
+    render command writes, with ``min_db`` the worst PSNR (ANF Eq. 14) over the sequences."""
+    from mcdenoise.training.render.command import REFERENCE_CHECK
+
+    folder = folder or ts.folder
+    path = Path(folder) / REFERENCE_CHECK
+    try:
+        data = json.loads(path.read_text())
+        if data.get("ref_spp") == ts.ref_spp:
+            return data
+    except (OSError, ValueError):
+        pass
+    render([*ts.render_args(folder), "--check-references"], f"second references of {folder}", log)
+    return json.loads(path.read_text())
+
+
 def sequences(root: str) -> list[list[str]]:
     """Frame paths per sequence folder under ``root`` (or ``root`` itself if it holds frames)."""
     rootp = Path(root)
