@@ -59,3 +59,31 @@ def test_train_errors_are_clear(tiny_dataset, tmp_path, capsys):
     assert main(["train", "wskpn-3", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "r3"),
                  "--steps", "1"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_window_loss_adds_the_temporal_term_on_frame_differences():
+    from mcdenoise.training.train import LOSSES, window_loss
+
+    torch.manual_seed(0)
+    refs = torch.rand(2, 3, 3, 8, 8) + 0.1
+    steady = [refs[:, t] * 1.1 for t in range(3)]                   # off by 10%, the same each frame
+    flicker = [refs[:, t] * (1.1 if t % 2 else 1 / 1.1) for t in range(3)]  # as far off (SMAPE), alternating
+    smape = LOSSES["smape"]
+    base = sum(smape(o, refs[:, t]) for t, o in enumerate(flicker)) / 3
+    assert torch.allclose(window_loss(smape, flicker, refs), base)
+    # Same per-frame error, but only the flicker pays the temporal term.
+    assert torch.allclose(window_loss(smape, steady, refs), window_loss(smape, flicker, refs), rtol=1e-2)
+    d_steady = window_loss(smape, steady, refs, 0.25) - window_loss(smape, steady, refs)
+    d_flicker = window_loss(smape, flicker, refs, 0.25) - window_loss(smape, flicker, refs)
+    assert d_flicker > 4 * d_steady > 0
+    want = 0.25 * sum(smape(flicker[t] - flicker[t - 1], refs[:, t] - refs[:, t - 1]) for t in (1, 2)) / 2
+    assert torch.allclose(d_flicker, want)
+
+
+def test_window_spp_and_temporal_weight_reach_the_run(tiny_dataset, tmp_path, capsys):
+    run = tmp_path / "r"
+    train("wskpn-3", tiny_dataset, run, steps=1, window=3, spp=[1, 2, 4], temporal_weight=0.25, **KW)
+    cfg = json.loads((run / runs.CONFIG_FILE).read_text())
+    assert cfg["window"] == 3 and cfg["spp"] == [1, 2, 4] and cfg["temporal_weight"] == 0.25
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "r2"), "--window", "0"]) == 2
+    assert "--window must be >= 1" in capsys.readouterr().err

@@ -275,7 +275,8 @@ class TrainSpec:
     loss: name of a training loss (training.train.LOSSES); lr: Adam learning rate;
     batch_size: windows per step; crop: square crop side in pixels; spp: input sample counts
     drawn per item; window: consecutive frames per temporal item; steps: optimiser steps;
-    minutes: wall-clock budget.
+    minutes: wall-clock budget; temporal_weight: weight of the temporal term, the loss of the
+    frame differences of output against reference (ANF §4 uses 0.25 with SMAPE).
     """
 
     loss: str = "smape"
@@ -286,6 +287,7 @@ class TrainSpec:
     window: int = 2
     steps: int = 2000
     minutes: float = 20.0
+    temporal_weight: float = 0.0
 
     def __post_init__(self):
         if not self.loss:
@@ -301,6 +303,8 @@ class TrainSpec:
             raise ValueError(f"spp: must be a non-empty list of counts >= 1, got {list(self.spp)}")
         if not self.minutes > 0:
             raise ValueError(f"minutes: must be > 0, got {self.minutes}")
+        if not self.temporal_weight >= 0:
+            raise ValueError(f"temporal_weight: must be >= 0, got {self.temporal_weight}")
 
 
 #: Keys of [paper] that are not "<stage>_ms" numbers.

@@ -46,6 +46,19 @@ def _l1(pred, ref):
 LOSSES = {"smape": smape, "l1": _l1, "l1_gamma": _l1_gamma}
 
 
+def window_loss(loss_fn, outs: list, refs, temporal_weight: float = 0.0):
+    """The training loss of a batch of windows: ``loss_fn`` of each frame's output against its
+    reference, averaged over the T frames, plus ``temporal_weight`` times the same loss of the
+    frame differences (output_t − output_t−1 against reference_t − reference_t−1, averaged over
+    the T − 1 pairs; ANF §4's temporal term), which penalises flicker the per-frame term
+    cannot see. outs: T tensors (B, 3, H, W); refs: (B, T, 3, H, W)."""
+    loss = sum(loss_fn(o, refs[:, t]) for t, o in enumerate(outs)) / len(outs)
+    if temporal_weight and len(outs) > 1:
+        loss = loss + temporal_weight * sum(loss_fn(outs[t] - outs[t - 1], refs[:, t] - refs[:, t - 1])
+                                            for t in range(1, len(outs))) / (len(outs) - 1)
+    return loss
+
+
 def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True):
     """Run the model over a batch of windows (B, T, C, H, W); returns a list of output dicts.
 
@@ -113,6 +126,12 @@ def add_arguments(p):
     p.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--crop", type=int, default=None)
+    p.add_argument("--window", type=int, default=None,
+                   help="consecutive frames per training item, unrolled with the history (default: spec)")
+    p.add_argument("--spp", type=int, nargs="+", default=None,
+                   help="input samples per pixel drawn per item, e.g. 1 2 4 8 (default: spec)")
+    p.add_argument("--temporal-weight", type=float, default=None,
+                   help="weight of the loss of frame differences (ANF §4: 0.25; default: spec)")
     p.add_argument("--val-fraction", type=float, default=0.2,
                    help="fraction of scene seeds held out for validation")
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: each epoch)")
@@ -124,9 +143,17 @@ def add_arguments(p):
 def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           steps: int | None = None, resume: bool = False, batch_size: int | None = None,
           crop: int | None = None, seed: int = 0, threads: int = 0, val_fraction: float = 0.2,
-          val_every: int = 0, quiet: bool = False) -> dict:
+          val_every: int = 0, quiet: bool = False, window: int | None = None,
+          spp: list[int] | None = None, temporal_weight: float | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring."""
     import torch
+
+    if window is not None and window < 1:
+        raise ValueError(f"--window must be >= 1, got {window}")
+    if spp is not None and (not spp or min(spp) < 1):
+        raise ValueError(f"--spp must be counts >= 1, got {spp}")
+    if temporal_weight is not None and not temporal_weight >= 0:
+        raise ValueError(f"--temporal-weight must be >= 0, got {temporal_weight}")
 
     from mcdenoise.training.dataset import SequenceDataset, collate
     from mcdenoise.training.specs import build_model, load_spec
@@ -153,12 +180,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "steps": steps if steps is not None else tr.steps,
             "minutes": minutes if minutes is not None else tr.minutes,
             "batch_size": batch_size or tr.batch_size, "crop": crop or tr.crop,
-            "lr": tr.lr, "loss": tr.loss, "spp": list(tr.spp), "window": tr.window,
+            "lr": tr.lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
+            "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
             "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv,
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         runs.init_run(run, spec_path, config)
+    config.setdefault("temporal_weight", 0.0)     # run folders from before the temporal term
     if config["loss"] not in LOSSES:
         raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
     loss_fn = LOSSES[config["loss"]]
@@ -206,7 +235,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         while pos < steps_per_epoch and step < config["steps"]:
             batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
             outs = run_window(model, batch, protocol)
-            loss = sum(loss_fn(o["output"], batch["reference"][:, t]) for t, o in enumerate(outs)) / len(outs)
+            loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
             if not torch.isfinite(loss):
                 raise TrainingDiverged(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept; "
                                        "a lower learning rate or the data's NaN report may help)")
@@ -252,6 +281,6 @@ def main(args) -> int:
     row = train(args.spec, args.data, args.out, minutes=args.minutes, steps=args.steps,
                 resume=args.resume, batch_size=args.batch_size, crop=args.crop, seed=args.seed,
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
-                quiet=args.quiet)
+                quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight)
     print(json.dumps(row, indent=2))
     return 0
