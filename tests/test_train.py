@@ -87,3 +87,42 @@ def test_window_spp_and_temporal_weight_reach_the_run(tiny_dataset, tmp_path, ca
     assert cfg["window"] == 3 and cfg["spp"] == [1, 2, 4] and cfg["temporal_weight"] == 0.25
     assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "r2"), "--window", "0"]) == 2
     assert "--window must be >= 1" in capsys.readouterr().err
+
+
+def test_two_processes_match_one_with_the_same_global_batch(tiny_dataset, tmp_path):
+    """torchrun with 2 CPU processes (DDP over gloo), each taking half of every step's batch of
+    4, ends with the weights of one process training on the whole batch (nbg-2l-1g: no
+    BatchNorm, whose statistics are per process on the CPU)."""
+    import socket
+    import subprocess
+    import sys
+
+    args = ["train", "nbg-2l-1g", "--data", tiny_dataset, "--steps", "3", "--batch-size", "4", "--crop", "32",
+            "--quiet", "--val-every", "0"]
+    with socket.socket() as s:      # a free port for the rendezvous
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
+                           "--master_addr", "127.0.0.1", "--master_port", str(port),
+                           "-m", "mcdenoise.runtime.cli", *args, "--out", str(tmp_path / "two")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert main([*args, "--out", str(tmp_path / "one")]) == 0
+    a, b = _weights(tmp_path / "one"), _weights(tmp_path / "two")
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-6, msg=k)
+    cfg = json.loads((tmp_path / "two" / runs.CONFIG_FILE).read_text())
+    assert cfg["batch_size"] == 4 and cfg["processes"] == 2
+    assert len(runs.read_metrics(tmp_path / "two")) == len(runs.read_metrics(tmp_path / "one"))
+
+
+def test_the_processes_share_each_global_batch_without_overlap():
+    from mcdenoise.training.train import batch_share
+
+    order = list(range(100, 124))
+    for pos in (0, 2):
+        shares = [batch_share(order, pos, 8, r, 4) for r in range(4)]
+        assert all(len(s) == 2 for s in shares)
+        assert sorted(i for s in shares for i in s) == order[pos * 8:(pos + 1) * 8]
+    assert batch_share(order, 1, 8, 0, 1) == order[8:16]

@@ -10,6 +10,15 @@ frame's value and the previous accumulation warped the same way).  The loss (spe
 
 Resume is exact: item order is a pure function of (seed, epoch, index), and the checkpoint
 stores model, optimiser, epoch and position within the epoch.
+
+Several processes (``torchrun --nproc_per_node N -m mcdenoise.runtime.cli train ...``, on one
+machine or several): torch's DistributedDataParallel, gloo on the CPU, NCCL on GPUs. Every
+process builds the same model and walks the same item order; step k's global batch of
+``batch_size`` items is split between them (``batch_size`` a multiple of N), DDP averages
+the gradients, so a step equals one process's step on the whole batch (BatchNorm aside: on
+GPUs it becomes SyncBatchNorm; on the CPU, which has none, each process normalises its own
+share). Process 0 alone validates and writes the run folder; the time budget and a
+diverging loss stop every process at the same step.
 """
 from __future__ import annotations
 
@@ -59,7 +68,7 @@ def window_loss(loss_fn, outs: list, refs, temporal_weight: float = 0.0):
     return loss
 
 
-def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True):
+def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True, forward=None):
     """Run the model over a batch of windows (B, T, C, H, W); returns a list of output dicts.
 
     The history is kept and fed back by ``protocol`` (:class:`runtime.temporal.Protocol`, the
@@ -69,7 +78,8 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
     As the runtime driver does, each window's colour is scaled by its auto-exposure factor
     (:func:`runtime.inputs.exposure_scale` of its first frame, fixed for the window) and the
     ``output`` scaled back, so outputs are in the data's units and the state in the
-    window's exposed units."""
+    window's exposed units. ``forward``: what runs the model (default ``model``; the trainer
+    passes its DistributedDataParallel wrapper)."""
     t_len = batch["color"].shape[1]
     outputs = []
     kept, prev_guides = None, None
@@ -86,7 +96,7 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
         missing = [n for n in model.input_names if n not in feeds]
         if missing:
             raise KeyError(f"model input(s) {missing} not in the batch ({sorted(feeds)})")
-        out = dict(zip(model.output_names, model(*[feeds[n] for n in model.input_names])))
+        out = dict(zip(model.output_names, (forward or model)(*[feeds[n] for n in model.input_names])))
         kept = protocol.update(acc, out)
         if exposure is not None:
             out[OUTPUT] = out[OUTPUT] / exposure
@@ -140,6 +150,25 @@ def add_arguments(p):
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def batch_share(order: list[int], pos: int, batch_size: int, rank: int, world: int) -> list[int]:
+    """The items process ``rank`` of ``world`` trains on at step ``pos`` of an epoch whose item
+    order is ``order``: its equal share of the global batch order[pos·B : (pos+1)·B]."""
+    return order[pos * batch_size:(pos + 1) * batch_size][rank::world]
+
+
+def _distributed(device: str = "cpu") -> tuple[int, int]:
+    """(rank, world size): from torchrun's environment, with the process group set up
+    (gloo on the CPU, NCCL on CUDA); (0, 1) when not launched by torchrun."""
+    import torch.distributed as dist
+
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device == "cuda" else "gloo")
+    return dist.get_rank(), dist.get_world_size()
+
+
 def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           steps: int | None = None, resume: bool = False, batch_size: int | None = None,
           crop: int | None = None, seed: int = 0, threads: int = 0, val_fraction: float = 0.2,
@@ -154,6 +183,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--spp must be counts >= 1, got {spp}")
     if temporal_weight is not None and not temporal_weight >= 0:
         raise ValueError(f"--temporal-weight must be >= 0, got {temporal_weight}")
+    rank, world = _distributed()
 
     from mcdenoise.training.dataset import SequenceDataset, collate
     from mcdenoise.training.specs import build_model, load_spec
@@ -183,16 +213,20 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "lr": tr.lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
             "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
             "val_fraction": val_fraction, "val_every": val_every,
-            "torch": torch.__version__, "argv": sys.argv,
+            "torch": torch.__version__, "argv": sys.argv, "processes": world,
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
-        runs.init_run(run, spec_path, config)
+        if rank == 0:
+            runs.init_run(run, spec_path, config)
     config.setdefault("temporal_weight", 0.0)     # run folders from before the temporal term
     if config["loss"] not in LOSSES:
         raise ValueError(f"unknown loss {config['loss']!r}; known: {sorted(LOSSES)}")
     loss_fn = LOSSES[config["loss"]]
     protocol = spec.protocol
 
+    bs = config["batch_size"]
+    if bs % world:
+        raise ValueError(f"--batch-size {bs} must be a multiple of the {world} processes")
     torch.manual_seed(config["seed"])
     model = build_model(spec)
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
@@ -203,7 +237,6 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
                               val_fraction=config["val_fraction"])
-    bs = config["batch_size"]
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
     if resume and (run / runs.CHECKPOINT_FILE).exists():
@@ -212,58 +245,76 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         opt.load_state_dict(ckpt["optimizer"])
         step, epoch, pos, elapsed = ckpt["step"], ckpt["epoch"], ckpt["pos"], ckpt["elapsed"]
         torch.set_rng_state(ckpt["torch_rng"])
+    forward = model
+    if world > 1:
+        import torch.distributed as dist
+        from torch.nn.parallel import DistributedDataParallel
+
+        dist.barrier()      # the run folder exists before anyone may write into it
+        forward = DistributedDataParallel(model)
 
     def save():
+        if rank != 0:
+            return
         runs.save_checkpoint(run, {"model": model.state_dict(), "optimizer": opt.state_dict(),
                                    "step": step, "epoch": epoch, "pos": pos, "elapsed": elapsed,
                                    "torch_rng": torch.get_rng_state(), "spec": spec.name})
 
     budget_s = None if config["minutes"] is None else 60.0 * config["minutes"]
     bar = None
-    if not quiet:
+    if not quiet and rank == 0:
         from tqdm import tqdm
 
         bar = tqdm(total=config["steps"], initial=step, desc=f"train {spec.name}", unit="step",
                    file=sys.stderr, dynamic_ncols=True)
     model.train()
-    last = {}
     t_start = time.perf_counter() - elapsed
-    while step < config["steps"] and (budget_s is None or elapsed < budget_s):
+    stopped = budget_s is not None and elapsed >= budget_s     # the same in every process
+    while step < config["steps"] and not stopped:
         train_set.set_epoch(epoch)
         order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
-            batch = collate([train_set[i] for i in order[pos * bs:(pos + 1) * bs]])
-            outs = run_window(model, batch, protocol)
+            batch = collate([train_set[i] for i in batch_share(order, pos, bs, rank, world)])
+            outs = run_window(model, batch, protocol, forward=forward)
             loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
-            if not torch.isfinite(loss):
-                raise TrainingDiverged(f"step {step}: loss is {float(loss)}; stopping (last checkpoint kept; "
+            # The global batch's loss (the mean of the processes' equal shares) and whether the
+            # first process's clock says stop: every process takes the same decisions.
+            elapsed = time.perf_counter() - t_start
+            shared = torch.stack([loss.detach(), torch.tensor(float(budget_s is not None and elapsed >= budget_s))])
+            if world > 1:
+                dist.all_reduce(shared)
+                shared[0] /= world
+            if not torch.isfinite(shared[0]):
+                raise TrainingDiverged(f"step {step}: loss is {float(shared[0])}; stopping (last checkpoint kept; "
                                        "a lower learning rate or the data's NaN report may help)")
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
             step += 1
             pos += 1
-            elapsed = time.perf_counter() - t_start
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(loss=f"{loss.item():.4f}", epoch=epoch)
+                bar.set_postfix(loss=f"{float(shared[0]):.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
-                last = _validate(run, model, val_set, protocol, step, epoch, elapsed, loss.item())
+                if rank == 0:
+                    _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]))
                 save()
-            if budget_s is not None and elapsed >= budget_s:
+            if shared[1] > 0:
+                stopped = True
                 break
         if pos >= steps_per_epoch:
             pos = 0
             epoch += 1
-            if not config["val_every"]:
-                last = _validate(run, model, val_set, protocol, step, epoch, elapsed, loss.item())
+            if not config["val_every"] and rank == 0:
+                _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]))
             save()
     if bar is not None:
         bar.close()
     save()
-    last = _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True)
-    return last
+    if rank != 0:
+        return {}
+    return _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True)
 
 
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False) -> dict:
