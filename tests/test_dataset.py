@@ -1,9 +1,11 @@
 """Dataset on the tiny rendered set: seed splits, spp subsets, and augmentation that keeps
 normals and motion vectors consistent with the image under all 8 symmetries."""
+import os
+
 import numpy as np
 import pytest
 
-from mcdenoise.runtime.frames import read_frame
+from mcdenoise.runtime.frames import FrameError, read_frame
 from mcdenoise.runtime.inputs import camera_axes
 from mcdenoise.runtime.temporal import reproject
 from mcdenoise.training.dataset import SequenceDataset, collate, dihedral, discover, split
@@ -104,3 +106,17 @@ def test_augmented_normals_agree_with_depth_gradients(tiny_dataset, k):
         a = np.concatenate([p[0] for p in pairs])
         b = np.concatenate([p[1] for p in pairs])
         assert np.corrcoef(a, b)[0, 1] > 0.2, (k, np.corrcoef(a, b)[0, 1])
+
+
+def test_shards_side_by_side_merge_and_a_repeated_seed_is_an_error(tiny_dataset, tmp_path):
+    """<root>/<shard>/<scene>: shards rendered apart are one data set; the same scene seed in
+    two shards (rendered with the same --seed) is refused."""
+    import shutil
+
+    seqs = discover(tiny_dataset)
+    for i, s in enumerate(seqs):
+        shutil.copytree(s.folder, tmp_path / "merged" / f"shard{i}" / os.path.basename(s.folder))
+    assert [s.seed for s in discover(tmp_path / "merged")] == [s.seed for s in seqs]
+    shutil.copytree(seqs[0].folder, tmp_path / "merged" / "shard9" / os.path.basename(seqs[0].folder))
+    with pytest.raises(FrameError, match="same scene seed"):
+        discover(tmp_path / "merged")

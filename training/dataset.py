@@ -41,15 +41,22 @@ class SequenceInfo:
 
 
 def discover(root: str | os.PathLike) -> list[SequenceInfo]:
-    """All sequences under ``root`` (folders holding frame_*.exr), sorted by scene seed."""
+    """All sequences under ``root``, sorted by scene seed: folders holding frame_*.exr, in
+    ``root`` or one level down, so that shards rendered apart (each ``mcdenoise render --out
+    <root>/<shard> --seed <its own>``, on one machine or several) merge by sitting side by side.
+    A scene seed found twice is an error (two shards rendered with the same --seed)."""
     root = os.fspath(root)
     if not os.path.isdir(root):
         raise FrameError(f"{root}: dataset folder does not exist")
-    seqs = []
-    for name in sorted(os.listdir(root)):
-        folder = os.path.join(root, name)
-        if not os.path.isdir(folder):
-            continue
+
+    def folders(d):
+        return [os.path.join(d, n) for n in sorted(os.listdir(d)) if os.path.isdir(os.path.join(d, n))]
+
+    candidates = folders(root)
+    if not any(frame_paths(f) for f in candidates):
+        candidates = [g for f in candidates for g in folders(f)]     # <root>/<shard>/<scene>
+    seqs, seen = [], {}
+    for folder in candidates:
         paths = frame_paths(folder)
         if not paths:
             continue
@@ -57,9 +64,14 @@ def discover(root: str | os.PathLike) -> list[SequenceInfo]:
         seed = meta.get("scene_seed", meta.get("seed"))
         if seed is None:
             raise FrameError(f"{paths[0]}: metadata has no scene_seed")
+        if int(seed) in seen:
+            raise FrameError(f"{folder} and {seen[int(seed)]} hold the same scene seed {seed} "
+                             "(shards rendered with the same --seed?)")
+        seen[int(seed)] = folder
         seqs.append(SequenceInfo(folder, int(seed), tuple(paths), int(meta.get("spp", 0))))
     if not seqs:
-        raise FrameError(f"{root}: no sequences (expected <root>/<scene>/frame_0000.exr, see {MANIFEST})")
+        raise FrameError(f"{root}: no sequences (expected <root>/<scene>/frame_0000.exr or "
+                         f"<root>/<shard>/<scene>/frame_0000.exr, see {MANIFEST})")
     return sorted(seqs, key=lambda s: s.seed)
 
 
