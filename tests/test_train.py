@@ -126,3 +126,29 @@ def test_the_processes_share_each_global_batch_without_overlap():
         assert all(len(s) == 2 for s in shares)
         assert sorted(i for s in shares for i in s) == order[pos * 8:(pos + 1) * 8]
     assert batch_share(order, 1, 8, 0, 1) == order[8:16]
+
+
+def test_learning_curves_train_every_variant_and_resume(tiny_dataset, tmp_path):
+    """curves: one run per (spec value, training-set size), each scoring the test folder at
+    every validation; run again with more steps, every run resumes and its curve grows."""
+    from mcdenoise.training.curves import spec_variant
+    from mcdenoise.training.specs import load_spec, parse_spec
+
+    text = spec_variant(load_spec("wskpn-3").path.read_text(), "widths", "[8]")
+    assert parse_spec(text).params["widths"] == (8,) and parse_spec(text).name == "wskpn-3-widths-8"
+    argv = ["curves", "wskpn-3", "--data", tiny_dataset, "--test", tiny_dataset, "--out", str(tmp_path / "c"),
+            "--sequences", "1", "--vary", "widths", "[4]", "[8]", "--steps", "2", "--eval-every", "1",
+            "--batch-size", "2", "--crop", "32"]
+    assert main(argv) == 0
+    first = json.loads((tmp_path / "c" / "curves.json").read_text())["runs"]
+    assert sorted(first) == ["wskpn-3-widths-4-n1", "wskpn-3-widths-8-n1"]
+    for r in first.values():
+        assert [p[0] for p in r["points"]] == [2, 4] and all(np.isfinite(p[2]) for p in r["points"])
+    argv[argv.index("--steps") + 1] = "3"
+    assert main(argv) == 0
+    again = json.loads((tmp_path / "c" / "curves.json").read_text())["runs"]
+    for name, r in again.items():
+        assert r["points"][:2] == first[name]["points"] and r["points"][-1][0] == 6
+    assert (tmp_path / "c" / "curves.png").read_bytes()[:4] == b"\x89PNG"
+    assert "wskpn-3-widths-8-n1" in (tmp_path / "c" / "curves.md").read_text()
+    assert main([*argv[:-2], "--vary", "no_such_key", "1"]) == 2

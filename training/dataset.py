@@ -134,12 +134,17 @@ class SequenceDataset:
         stored samples, identity symmetry (validation).
       samples: also return the per-sample array.
       seed: base seed; item i of epoch e is a pure function of (seed, e, i).
+      max_sequences: keep only the first N sequences of the split (sorted by scene seed).
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
-                 samples=False, seed=0, val_fraction=0.2):
+                 samples=False, seed=0, val_fraction=0.2, max_sequences=None):
         self.seqs = split(discover(root), part, val_fraction)
+        if max_sequences is not None:
+            if max_sequences < 1:
+                raise ValueError(f"max_sequences must be >= 1, got {max_sequences}")
+            self.seqs = self.seqs[:max_sequences]       # by scene seed: smaller sets nest in larger
         if not self.seqs:
             raise FrameError(f"{root}: split {part!r} is empty ({len(discover(root))} sequences)")
         self.layers = tuple(layers)

@@ -140,6 +140,11 @@ def add_arguments(p):
                    help="consecutive frames per training item, unrolled with the history (default: spec)")
     p.add_argument("--spp", type=int, nargs="+", default=None,
                    help="input samples per pixel drawn per item, e.g. 1 2 4 8 (default: spec)")
+    p.add_argument("--max-sequences", type=int, default=None,
+                   help="train on the first N sequences of the training split (by scene seed; nested subsets "
+                        "for learning curves)")
+    p.add_argument("--test", default=None, metavar="DIR",
+                   help="also score every validation on this held-out folder of sequences (test_* metrics)")
     p.add_argument("--temporal-weight", type=float, default=None,
                    help="weight of the loss of frame differences (ANF §4: 0.25; default: spec)")
     p.add_argument("--val-fraction", type=float, default=0.2,
@@ -173,7 +178,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           steps: int | None = None, resume: bool = False, batch_size: int | None = None,
           crop: int | None = None, seed: int = 0, threads: int = 0, val_fraction: float = 0.2,
           val_every: int = 0, quiet: bool = False, window: int | None = None,
-          spp: list[int] | None = None, temporal_weight: float | None = None) -> dict:
+          spp: list[int] | None = None, temporal_weight: float | None = None,
+          max_sequences: int | None = None, test_data: str | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring."""
     import torch
 
@@ -214,6 +220,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
             "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
+            "max_sequences": max_sequences, "test_data": os.path.abspath(test_data) if test_data else None,
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         if rank == 0:
@@ -233,10 +240,15 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     layers = tuple(spec.inputs.layers)
     train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
                                 spp_choices=config["spp"], window=config["window"],
-                                seed=config["seed"], val_fraction=config["val_fraction"])
+                                seed=config["seed"], val_fraction=config["val_fraction"],
+                                max_sequences=config.get("max_sequences"))
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
                               val_fraction=config["val_fraction"])
+    test_set = None if not config.get("test_data") else SequenceDataset(
+        config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
+        window=config["window"], augment=False)
+    val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"]}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
     if resume and (run / runs.CHECKPOINT_FILE).exists():
@@ -298,7 +310,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                 bar.set_postfix(loss=f"{float(shared[0]):.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
                 if rank == 0:
-                    _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]))
+                    _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]), **val_kw)
                 save()
             if shared[1] > 0:
                 stopped = True
@@ -307,19 +319,23 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"] and rank == 0:
-                _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]))
+                _validate(run, model, val_set, protocol, step, epoch, elapsed, float(shared[0]), **val_kw)
             save()
     if bar is not None:
         bar.close()
     save()
     if rank != 0:
         return {}
-    return _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True)
+    return _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True, **val_kw)
 
 
-def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False) -> dict:
+def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
+              batch_size: int = 1, window: int = 1) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
-           "final": final, **evaluate(model, val_set, protocol)}
+           "final": final, "examples": step * batch_size, "frames_seen": step * batch_size * window,
+           **evaluate(model, val_set, protocol)}
+    if test_set is not None:
+        row.update({"test" + k[3:]: v for k, v in evaluate(model, test_set, protocol).items() if k.startswith("val_")})
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)
@@ -332,6 +348,7 @@ def main(args) -> int:
     row = train(args.spec, args.data, args.out, minutes=args.minutes, steps=args.steps,
                 resume=args.resume, batch_size=args.batch_size, crop=args.crop, seed=args.seed,
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
-                quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight)
+                quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
+                max_sequences=args.max_sequences, test_data=args.test)
     print(json.dumps(row, indent=2))
     return 0
