@@ -567,3 +567,22 @@ def test_reference_check_compares_two_references_of_the_same_frame(tmp_path, cap
     a, b = (read_frame(out / n / frame_name(0), samples=False).reference for n in names)
     assert check["min_db"] > psnr(a, b) + 8.0, (check, psnr(a, b))
     assert "agree to" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", __import__("mcdenoise.training.testsets").training.testsets.HELD_OUT_SCENES)
+def test_the_hand_made_held_out_scenes_render(name, tmp_path):
+    """samples/heldout/: Mitsuba loads each scene with its sensor, the renderer's camera drift
+    keeps the camera inside (every pixel hits something within the room or, through the
+    window, the sky outside it), and its light reaches the image (mostly indirect)."""
+    from mcdenoise.training.testsets import HELD_OUT
+
+    ts = HELD_OUT[name]
+    scene = ts.flags[ts.flags.index("--scene") + 1]
+    out = tmp_path / "o"
+    rc = cli_main(["render", "--out", str(out), "--scene", scene, "--scenes", "1", "--frames", "3", "--size", "24x24",
+                   "--spp", "2", "--ref-spp", "8", "--seed", str(ts.seed), "--camera-speed", "2", "--variant", render_variant()])
+    assert rc == 0
+    for t in (0, 2):
+        fr = read_frame(next(out.glob("*/")) / frame_name(t))
+        assert (fr.depth > 0).all() and fr.depth.max() < 15.0, (t, fr.depth.min(), fr.depth.max())
+        assert fr.reference.mean() > 0.02 and np.isfinite(fr.reference).all()

@@ -49,7 +49,7 @@ from mcdenoise.training.harness import (bench_torch, builtin_method, gpu_name, o
                                         time_interleaved)
 from mcdenoise.training.report import rel_path, write_outputs
 from mcdenoise.training.scoring import run_methods
-from mcdenoise.training.testsets import (LONG_SEQUENCES, QUICK, SEQUENCES, STILLS, TestSet, ensure, read_sequences,
+from mcdenoise.training.testsets import (HELD_OUT, LONG_SEQUENCES, QUICK, SEQUENCES, STILLS, TestSet, ensure, read_sequences,
                                          reference_check, stored_spp)
 
 DEFAULT_SIZES = ("256x256", "1280x720")
@@ -137,12 +137,14 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
     rs = [s1, s2]
     if long:
         # --quick: the tiny set stands in, so the code path runs in CI
-        for name, ts in ({"quick": QUICK} if quick else LONG_SEQUENCES).items():
+        long_sets = {"long-quick": QUICK} if quick else {
+            **{f"long-{n}": ts for n, ts in LONG_SEQUENCES.items()}, **{f"heldout-{n}": ts for n, ts in HELD_OUT.items()}}
+        for kind, ts in long_sets.items():
             folder, secs = rendered(ts, seq_dir if quick else None)
-            sets.append((f"long-{name}", folder, LONG_SPP, 1 if quick else LONG_WARMUP))
+            sets.append((kind, folder, LONG_SPP, 1 if quick else LONG_WARMUP))
             rs.append(secs)
             if not quick:   # are the references clean enough for the PSNR they measure?
-                testsets[f"long-{name}:reference_db"] = reference_check(ts, folder, log)["min_db"]
+                testsets[f"{kind}:reference_db"] = reference_check(ts, folder, log)["min_db"]
     testsets["render_s"] = sum(r or 0 for r in rs) if any(rs) else None
     methods = [load_method(n, threads=threads) for n in ["noisy"] + [b for b in builtins if b != "noisy"]]
     methods += [load_method(p, threads=threads) for p in models]

@@ -205,17 +205,19 @@ def write_charts(res, out: Path) -> None:
     plt.close(fig)
 
 
-def _long_tables(res, order) -> list[str]:
+def _long_tables(res, order, prefix: str = "long-", title: str = "Long sequences") -> list[str]:
     """The long sequences' table per spp: PSNR over all frames and after the warm-up, TRMAE
-    and the warped temporal error after it, one column group per camera speed."""
+    and the warped temporal error after it, one column group per set (camera speed, or
+    held-out scene with ``prefix="heldout-"``)."""
     q, ts = res["quality"], res["testsets"]
-    sets = [k for k in ts if isinstance(k, str) and k.startswith("long-") and ":" not in k]
+    sets = [k for k in ts if isinstance(k, str) and k.startswith(prefix) and ":" not in k]
     if not sets:
         return []
     first = ts[sets[0]]
-    L = ["### Long sequences", "",
+    cut = len(prefix)
+    L = [f"### {title}", "",
          f"{first['sequences']} sequences x {first['frames'] // max(1, first['sequences'])} frames at {first['size']} "
-         f"per camera speed ({', '.join(s[5:] for s in sets)}: " + ", ".join(f"`{ts[s]['folder']}`" for s in sets)
+         f"per set ({', '.join(s[cut:] for s in sets)}: " + ", ".join(f"`{ts[s]['folder']}`" for s in sets)
          + f"; reference {first['ref_spp']} spp, scene seeds {_seeds(first['scene_seeds'])}), every method with its "
          f"history, reset at each sequence's start. 'all': PSNR over every frame; 'after': over the frames after the "
          f"first {first['warmup']} of each sequence, as a real-time user sees it, with TRMAE (ANF Eq. 16) and WTE, the "
@@ -226,12 +228,12 @@ def _long_tables(res, order) -> list[str]:
     if any(v is not None for v in refs.values()):
         L[-1] += (" Reference check (`mcdenoise render ... --check-references`: a second reference of each first "
                   "frame from independent seeds): the two agree to at least " + ", ".join(
-                      f"{v:.1f} dB ({s[5:]})" for s, v in refs.items() if v is not None)
+                      f"{v:.1f} dB ({s[cut:]})" for s, v in refs.items() if v is not None)
                   + "; a method's PSNR near that is limited by the reference, not the method.")
     L.append("")
     spps = sorted({spp for (kind, spp) in q if kind in sets})
     for spp in spps:
-        head = "| method | " + " | ".join(f"{s[5:]} PSNR all | after | TRMAE | WTE" for s in sets) + " |"
+        head = "| method | " + " | ".join(f"{s[cut:]} PSNR all | after | TRMAE | WTE" for s in sets) + " |"
         L += [f"{spp} spp:", "", head, "|---|" + "---:|" * (4 * len(sets))]
         for m in order:
             cells = []
@@ -298,6 +300,7 @@ def bench_markdown(res) -> str:
               + (f", test-set rendering {rs:.0f} s (once; reused afterwards)" if rs else
                  " (test sets reused, not rendered in this run)") + ".", ""]
         L += _long_tables(res, order)
+        L += _long_tables(res, order, "heldout-", "Held-out scenes made by hand (never trained on)")
         L += ["### All metrics", ""]
         for (kind, spp), per in q.items():
             L += [f"{kind}, {spp} spp:", "", "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE | WTE |",
