@@ -586,3 +586,27 @@ def test_the_hand_made_held_out_scenes_render(name, tmp_path):
         fr = read_frame(next(out.glob("*/")) / frame_name(t))
         assert (fr.depth > 0).all() and fr.depth.max() < 15.0, (t, fr.depth.min(), fr.depth.max())
         assert fr.reference.mean() > 0.02 and np.isfinite(fr.reference).all()
+
+
+def test_enclosed_rooms_keep_the_scene_and_close_it(tmp_path):
+    """--enclosed: the same objects and camera path as the open scene, now inside walls all
+    round with a ceiling (no ray leaves: every pixel hits), the environment gone, light through
+    a window and from a lamp behind an occluder; probability 0 changes nothing."""
+    def objs(spec, prefix=""):
+        return json.dumps({k: v for k, v in spec.objects.items() if k.startswith(prefix)}, sort_keys=True)
+
+    a = procedural.generate(21, 64, 64, 4)
+    same = procedural.generate(21, 64, 64, 4, enclosed=0.0)
+    assert objs(same) == objs(a) and same.path == a.path and same.setting == a.setting
+    b = procedural.generate(21, 64, 64, 4, enclosed=1.0)
+    assert b.setting == "enclosed" and "environment" not in b.objects and b.path == a.path
+    assert objs(a, "obj") == objs(b, "obj")
+    for part in ("room_ceiling", "room_lamp", "room_occluder", "room_window_light", "room_bar00"):
+        assert part in b.objects, part
+    out = tmp_path / "o"
+    rc = cli_main(["render", "--out", str(out), "--scenes", "1", "--frames", "2", "--size", "24x24", "--spp", "2",
+                   "--ref-spp", "8", "--seed", "21", "--enclosed", "on", "--variant", render_variant()])
+    assert rc == 0
+    fr = read_frame(next(out.glob("scene_*")) / frame_name(1))
+    assert (fr.depth > 0).all() and fr.reference.mean() > 0.01
+    assert json.loads((out / MANIFEST).read_text())["settings"]["enclosed_probability"] == 1.0

@@ -71,6 +71,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scale of the camera's motion per frame (default 1)")
     p.add_argument("--aperture-scale", type=float, default=1.0,
                    help="multiply procedural scenes' thin-lens aperture radius (stronger defocus; default 1)")
+    p.add_argument("--enclosed", type=probability, default=0.0, metavar="P|on|off",
+                   help="probability a procedural scene is closed into a room lit mostly indirectly: walls all "
+                        "round, a ceiling, light through a window opening and from a lamp behind an occluder, thin "
+                        "bars, often a glossy floor (default off; the rest of each scene is unchanged)")
     p.add_argument("--floor", choices=("scene", "glossy", "mirror"), default="scene",
                    help="procedural floor material: the scene's own (default), glossy silver (GGX alpha 0.05) "
                         "or a silver mirror")
@@ -104,7 +108,8 @@ def _settings(args, variant: str) -> dict:
             "camera_path": os.path.abspath(args.camera_path) if args.camera_path else None,
             # only when changed, so data sets rendered before these options existed stay complete
             **({"aperture_scale": args.aperture_scale} if getattr(args, "aperture_scale", 1.0) != 1.0 else {}),
-            **({"floor": args.floor} if getattr(args, "floor", "scene") != "scene" else {})}
+            **({"floor": args.floor} if getattr(args, "floor", "scene") != "scene" else {}),
+            **({"enclosed_probability": args.enclosed} if getattr(args, "enclosed", 0.0) else {})}
 
 
 def plan(args) -> list[dict]:
@@ -206,7 +211,8 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
                              job["motion_blur"])
         else:
             spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
-                                       getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"))
+                                       getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
+                                       getattr(a, "enclosed", 0.0))
             seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
         report = progress.put if hasattr(progress, "put") else progress
         seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
@@ -280,8 +286,8 @@ def main(args) -> int:
         raise ValueError(f"--camera-speed must be >= 0, got {args.camera_speed}")
     if not args.aperture_scale > 0:
         raise ValueError(f"--aperture-scale must be > 0, got {args.aperture_scale}")
-    if args.scene and (args.aperture_scale != 1.0 or args.floor != "scene"):
-        raise ValueError("--aperture-scale and --floor change procedural scenes; a --scene keeps its own")
+    if args.scene and (args.aperture_scale != 1.0 or args.floor != "scene" or args.enclosed):
+        raise ValueError("--aperture-scale, --floor and --enclosed change procedural scenes; a --scene keeps its own")
     if args.camera_path and not args.scene:
         raise ValueError("--camera-path needs --scene (procedural scenes make their own camera paths)")
     if args.scene and not os.path.isfile(args.scene):
@@ -359,7 +365,8 @@ def check_references(args_dict: dict, jobs: list[dict], variant: str) -> dict:
                                  job["motion_blur"])
             else:
                 spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
-                                           getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"))
+                                           getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
+                                       getattr(a, "enclosed", 0.0))
                 seq = load_procedural(mi, spec, tmp, job["frames"], a.spp)
             second, _ = SequenceRenderer(mi, seq, spp=1, ref_spp=a.ref_spp, variant=variant).reference(0, stream=2)
         first = read_frame(os.path.join(a.out, job["name"], frame_name(0)), samples=False).reference

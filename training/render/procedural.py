@@ -378,9 +378,96 @@ def scene_flags(seed: int, defocus: float, motion_blur: float) -> tuple[bool, bo
     return bool(flags.random() < defocus), bool(flags.random() < motion_blur)
 
 
+def enclosed_flag(seed: int, enclosed: float) -> bool:
+    """Whether scene ``seed`` becomes an enclosed room (:func:`enclose`), from a stream of its
+    own, so that the probability never changes the rest of a scene."""
+    return bool(np.random.default_rng([seed, 10]).random() < enclosed)
+
+
+def enclose(objects: dict, materials: dict, bitmaps: list[str], path, frames: int, seed: int,
+            glossy_floor: bool = True) -> None:
+    """Close the scene into a room around its objects and the whole camera path (walls all
+    round and a ceiling, so no sky is seen), lit mostly indirectly: the environment goes, a
+    window opening in one wall lets in the light of a bright panel outside, a lamp stands
+    behind an occluder near a corner, a row of thin bars stands inside the objects' reach of
+    the camera, and the floor is often glossy. From a random stream of its own ([seed, 11]),
+    after every other draw, so the objects and the camera path stay those of the open scene."""
+    rng = np.random.default_rng([seed, 11])
+    pos = np.array([path.position(u) for u in np.linspace(-1, frames + 1, 4 * frames + 9)])
+    half = float(max(np.abs(pos[:, [0, 2]]).max(), OBJECT_RADIUS + 1.0) + rng.uniform(1.0, 2.5))
+    height = float(max(pos[:, 1].max() + rng.uniform(1.0, 2.5), 3.5))
+    for name in [k for k in objects if k.startswith(("wall_", "environment"))]:
+        objects.pop(name)
+        materials.pop(name, None)
+
+    def rect(name, centre, normal, hw, hh, bsdf, rec, up=(0.0, 1.0, 0.0)):
+        centre = np.asarray(centre, np.float64)
+        objects[name] = {"type": "rectangle", "bsdf": bsdf,
+                         "to_world": _matrix(look_at(centre, centre + np.asarray(normal), up) @ _scale(hw, hh, 1))}
+        materials[name] = rec
+
+    window_wall = int(rng.integers(4))
+    for k in range(4):
+        normal = np.array([(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0)][k], np.float64)
+        centre = -normal * half + np.array([0.0, height / 2, 0.0])
+        bsdf, rec = _material(rng, "diffuse" if rng.random() < 0.7 else "roughplastic", bitmaps, uv_scale=half / 2)
+        if k != window_wall:
+            rect(f"room_wall{k}", centre, normal, half, height / 2, bsdf, rec)
+            continue
+        # an opening in this wall: four panels around it, a bright panel outside
+        along = look_at(centre, centre + normal)[:3, 0]
+        w = float(rng.uniform(0.15, 0.35)) * half
+        c = float(rng.uniform(-0.5, 0.5)) * (half - w)
+        y0, y1 = float(rng.uniform(0.6, 1.2)), float(min(height - 0.4, rng.uniform(2.2, 3.2)))
+        base = -normal * half
+        for j, (a0, a1, b0, b1) in enumerate(((-half, half, 0.0, y0), (-half, half, y1, height),
+                                              (-half, c - w, y0, y1), (c + w, half, y0, y1))):
+            rect(f"room_wall{k}_{j}", base + along * (a0 + a1) / 2 + np.array([0, (b0 + b1) / 2, 0]), normal,
+                 (a1 - a0) / 2, (b1 - b0) / 2, bsdf, rec)
+        outside = base - normal * float(rng.uniform(2.0, 4.0)) + along * c + np.array([0, (y0 + y1) / 2, 0])
+        radiance = np.array(random_color(rng, 0.7, 1.0)) * float(rng.uniform(5, 20))
+        rect("room_window_light", outside, normal, 4 * w, 3 * (y1 - y0), _emitter_bsdf(), {"kind": "emitter"})
+        objects["room_window_light"]["emitter"] = {"type": "area", "radiance": _rgb(radiance)}
+    bsdf = {"type": "diffuse", "reflectance": _rgb(np.full(3, float(rng.uniform(0.6, 0.85))))}
+    rect("room_ceiling", (0.0, height, 0.0), (0, -1, 0), half, half, bsdf, {"kind": "diffuse"}, up=(0.0, 0.0, 1.0))
+    # a lamp behind an occluder, near a corner
+    corner = np.array([rng.choice([-1, 1]) * (half - 0.6), 0.0, rng.choice([-1, 1]) * (half - 0.6)])
+    lamp_r = float(rng.uniform(0.15, 0.35))
+    lamp = corner + np.array([0.0, float(rng.uniform(0.5, 1.5)), 0.0])
+    objects["room_lamp"] = {"type": "sphere", "center": lamp.tolist(), "radius": lamp_r, "bsdf": _emitter_bsdf(),
+                            "emitter": {"type": "area", "radiance": _rgb(
+                                np.array(random_color(rng, 0.8, 1.0)) * float(rng.uniform(5, 15)) * (0.3 / lamp_r) ** 2)}}
+    materials["room_lamp"] = {"kind": "emitter"}
+    towards = -corner / max(np.linalg.norm(corner), 1e-9)
+    screen = corner + towards * (lamp_r + 0.5)
+    size = np.array([0.8, lamp[1] + lamp_r + 0.4, 0.8])
+    objects["room_occluder"] = {"type": "cube", "to_world": _matrix(
+        translation(screen + np.array([0, size[1] / 2, 0])) @ _scale(*(size / 2)))}
+    objects["room_occluder"]["bsdf"], materials["room_occluder"] = _material(rng, "diffuse", bitmaps)
+    # thin bars: a railing between the objects and the camera's closest approach
+    n_bars = int(rng.integers(4, 13))
+    a = float(rng.uniform(0, 2 * math.pi))
+    r = OBJECT_RADIUS + float(rng.uniform(0.3, 1.0))
+    tangent = np.array([-math.sin(a), 0.0, math.cos(a)])
+    start = np.array([r * math.cos(a), 0.0, r * math.sin(a)])
+    gap, radius, tall = float(rng.uniform(0.15, 0.35)), float(rng.uniform(0.008, 0.03)), float(rng.uniform(0.8, 2.5))
+    bsdf, rec = _material(rng, "roughconductor" if rng.random() < 0.6 else "diffuse", bitmaps)
+    for i in range(n_bars):
+        p = start + tangent * (i - n_bars / 2) * gap
+        objects[f"room_bar{i:02d}"] = {"type": "cylinder", "bsdf": bsdf,
+                                       "to_world": _matrix(translation(p) @ rotation((1, 0, 0), -90)
+                                                           @ _scale(radius, radius, tall))}
+        materials[f"room_bar{i:02d}"] = rec
+    if glossy_floor and rng.random() < 0.5:
+        alpha = float(rng.uniform(0.02, 0.15))
+        objects["floor"]["bsdf"] = {"type": "twosided", "bsdf": {"type": "roughconductor", "material": "Ag",
+                                                                 "distribution": "ggx", "alpha": alpha}}
+        materials["floor"] = {"kind": "roughconductor", "metal": "Ag", "alpha": alpha}
+
+
 def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float = 0.5,
              motion_blur: float = 0.0, speed: float = 1.0, aperture_scale: float = 1.0,
-             floor: str = "scene") -> SceneSpec:
+             floor: str = "scene", enclosed: float = 0.0) -> SceneSpec:
     """The procedural scene for ``seed`` (any int >= 0), for a ``width`` x ``height`` film.
 
     ``frames`` bounds the camera path check (the camera stays above the floor and outside the
@@ -390,7 +477,9 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     the camera's motion per frame (1: about 0.5-3° of rotation and up to 0.25 units of travel).
     ``aperture_scale`` multiplies the thin lens's aperture radius (stronger defocus) and
     ``floor`` (:data:`FLOOR_KINDS`) replaces the floor's material; both act after every random
-    draw, so the rest of the scene stays the same.
+    draw, so the rest of the scene stays the same. ``enclosed`` is the probability that the
+    scene becomes an enclosed room lit mostly indirectly (:func:`enclose`; its own stream, also
+    after every other draw).
     """
     if seed < 0:
         raise ValueError(f"scene seed must be >= 0, got {seed}")
@@ -528,6 +617,10 @@ def generate(seed: int, width: int, height: int, frames: int = 8, defocus: float
     aperture = float(rng.uniform(0.02, 0.15) * focus / 7.0) * aperture_scale
     intr = Intrinsics(width, height, x_fov, aperture_radius=aperture if use_defocus else 0.0,
                       focus_distance=focus, near_clip=0.01, far_clip=1000.0)
+    if enclosed_flag(seed, enclosed):
+        enclose(objects, materials, bitmaps, path, frames, seed, glossy_floor=floor == "scene")
+        setting = "enclosed"
+        assets.pop("sky.exr", None)
     return SceneSpec(seed=seed, name=scene_name(seed), objects=objects, assets=assets, intrinsics=intr,
                      path=path, materials=materials, defocus=use_defocus, motion_blur=use_blur,
                      setting=setting)
