@@ -194,11 +194,26 @@ def _read_manifest(out: str) -> dict:
 # Running a job (in this process or a worker)
 # ----------------------------------------------------------------------------------------------
 
+def _sequence(mi, a: argparse.Namespace, job: dict, folder: str):
+    """The renderer's Sequence of ``job``: the user's scene, or the procedural scene of its seed
+    (exported into ``folder``/scene)."""
+    from mcdenoise.training.render import procedural
+    from mcdenoise.training.render.renderer import load_procedural, user_scene
+
+    w, h = a.size
+    if a.scene:
+        return user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
+                          job["motion_blur"])
+    spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
+                               getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
+                               getattr(a, "enclosed", 0.0))
+    return load_procedural(mi, spec, folder, job["frames"], a.spp)
+
+
 def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     """Render one sequence; returns its manifest entry.  ``progress``: a callable taking the
     number of finished render calls, or a queue to put them on (worker processes)."""
-    from mcdenoise.training.render import procedural
-    from mcdenoise.training.render.renderer import RenderError, load_procedural, one_line, render_sequence, user_scene
+    from mcdenoise.training.render.renderer import RenderError, one_line, render_sequence
     from mcdenoise.training.render.variant import init_mitsuba
 
     mi = init_mitsuba(variant)
@@ -206,14 +221,7 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     w, h = a.size
     folder = os.path.join(a.out, job["name"])
     try:
-        if a.scene:
-            seq = user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
-                             job["motion_blur"])
-        else:
-            spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
-                                       getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
-                                       getattr(a, "enclosed", 0.0))
-            seq = load_procedural(mi, spec, folder, job["frames"], a.spp)
+        seq = _sequence(mi, a, job, folder)
         report = progress.put if hasattr(progress, "put") else progress
         seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
                                   pixel_only=getattr(a, "pixel_only", False))
@@ -350,8 +358,7 @@ def check_references(args_dict: dict, jobs: list[dict], variant: str) -> dict:
 
     from mcdenoise.runtime.frames import frame_name, read_frame
     from mcdenoise.training.metrics import psnr
-    from mcdenoise.training.render import procedural
-    from mcdenoise.training.render.renderer import SequenceRenderer, load_procedural, user_scene
+    from mcdenoise.training.render.renderer import SequenceRenderer
     from mcdenoise.training.render.variant import init_mitsuba
 
     mi = init_mitsuba(variant)
@@ -360,14 +367,7 @@ def check_references(args_dict: dict, jobs: list[dict], variant: str) -> dict:
     result = {"frame": 0, "ref_spp": a.ref_spp, "stream": 2, "variant": variant, "sequences": {}}
     for job in jobs:
         with tempfile.TemporaryDirectory() as tmp:
-            if a.scene:
-                seq = user_scene(mi, a.scene, (w, h), job["seed"], job["frames"], a.camera_path, a.camera_speed,
-                                 job["motion_blur"])
-            else:
-                spec = procedural.generate(job["seed"], w, h, job["frames"], a.defocus, a.motion_blur, a.camera_speed,
-                                           getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
-                                       getattr(a, "enclosed", 0.0))
-                seq = load_procedural(mi, spec, tmp, job["frames"], a.spp)
+            seq = _sequence(mi, a, job, tmp)
             second, _ = SequenceRenderer(mi, seq, spp=1, ref_spp=a.ref_spp, variant=variant).reference(0, stream=2)
         first = read_frame(os.path.join(a.out, job["name"], frame_name(0)), samples=False).reference
         result["sequences"][job["name"]] = db = psnr(first, second)
