@@ -117,16 +117,19 @@ class Protocol:
         return {self.accum_key(inp): feeds[inp] for _, inp, _ in self.accumulate}
 
     def follow(self, feeds: dict, kept: dict, motion, cur: dict, prev: dict,
-               contiguous: Callable = lambda a: a, **reproject_args) -> dict:
+               contiguous: Callable = lambda a: a, reproject_fn: Callable | None = None, **reproject_args) -> dict:
         """A frame that continues the history ``kept`` (from :meth:`update`): its state and
         accumulations reprojected along ``motion`` (N, 2, H, W) with the consistency test on
         the guides ``cur`` / ``prev`` (:func:`reproject`, which gets ``reproject_args``), put
         into ``feeds`` with the history mask; each accumulated input becomes its
         accumulation. ``contiguous`` prepares each array fed (the driver makes them
-        contiguous float32). Returns the accumulations to keep."""
+        contiguous float32); ``reproject_fn`` replaces :func:`reproject` with what computes the
+        same (the prelude graph, :class:`runtime.prelude.PreludeGraph`). Returns the
+        accumulations to keep."""
         keys = [s[0] for s in self.state] + [self.accum_key(inp) for _, inp, _ in self.accumulate]
         blend = [None] * len(self.state) + [(feeds[inp], alpha) for _, inp, alpha in self.accumulate]
-        warped, history = reproject([kept[k] for k in keys], motion, cur, prev, blend=blend, **reproject_args)
+        warped, history = (reproject_fn or reproject)([kept[k] for k in keys], motion, cur, prev, blend=blend,
+                                                      **reproject_args)
         for (_, inp, _, _), arr in zip(self.state, warped):
             feeds[inp] = contiguous(arr)
         if self.state:

@@ -10,7 +10,8 @@ from pathlib import Path
 RUNTIME = Path(__file__).resolve().parent.parent / "runtime"
 #: The deployable core (ARCHITECTURE: frames, inputs, contract, temporal, denoiser, timing),
 #: with the transfer curves and the driver's worker threads.
-CORE = ("__init__", "frames", "inputs", "contract", "temporal", "denoiser", "timing", "transfer", "workers")
+CORE = ("__init__", "frames", "inputs", "contract", "temporal", "denoiser", "timing", "transfer", "workers",
+        "prelude")
 #: Lines of the core, blank lines and comments included.
 LINE_BUDGET = 2500
 ALLOWED = {"numpy", "onnxruntime", "OpenEXR", "mcdenoise"}

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 import onnx
+import onnxruntime as ort
 import pytest
 import torch
 
@@ -560,3 +561,38 @@ def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file):
     assert any("non-finite values; replaced by the input" in m for m in msgs)
     den.session.run = real
     assert np.isfinite(den(frames[2])).all() and den._state is not None
+
+
+@pytest.mark.parametrize("path", shipped_models(), ids=os.path.basename)
+def test_the_prelude_graph_gives_the_numpy_prelude(path):
+    """The driver's reprojection and accumulation as the shipped prelude graph (what a device
+    provider runs; exercised here on the CPU provider) gives the numpy prelude's images over a
+    sequence with history, within float rounding."""
+    frames = [_frame(t, 36, 52) for t in range(4)]
+    a = Denoiser.load(path, log=lambda m: None, prelude="numpy")
+    b = Denoiser.load(path, log=lambda m: None, prelude="graph")
+    assert a.prelude is None and b.prelude is not None
+    for f in frames:
+        np.testing.assert_allclose(b(f), a(f), rtol=1e-5, atol=1e-6)
+    assert b.report.frames == 4 and not b.report.resets
+
+
+def test_the_shipped_prelude_graph_is_the_torch_prelude():
+    """models/driver/prelude.onnx computes what runtime.temporal's torch path computes, at two
+    sizes and channel counts other than the export's (regenerate: python -m
+    mcdenoise.export.prelude --out models/driver/prelude.onnx)."""
+    from mcdenoise.export.prelude import example
+    from mcdenoise.runtime.prelude import OUTPUTS, SHIPPED
+    from mcdenoise.runtime.temporal import accumulate, reproject
+
+    sess = ort.InferenceSession(str(SHIPPED), providers=["CPUExecutionProvider"])
+    for c, h, w, seed in ((3, 17, 29, 1), (7, 40, 23, 2)):
+        f = example(c, h, w, seed)
+        t = {k: torch.from_numpy(v) for k, v in f.items()}
+        cur = {g: t[f"cur_{g}"] for g in ("depth", "position", "normal")}
+        old = {g: t[f"prev_{g}"] for g in ("depth", "position", "normal")}
+        (warped,), hist = reproject([t["prev"]], t["motion"], cur, old)
+        want = warped + t["blend"] * (accumulate(t["current"], warped, hist, t["alpha"]) - warped)
+        got = sess.run(list(OUTPUTS), f)
+        np.testing.assert_allclose(got[0], want.numpy(), rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(got[1], hist.numpy())
