@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# The GPU check of issue 17, one command on a lent GPU machine, from the repository root there:
+#   run: bash docs/results/device/gpu_check.sh      (carry: .gpu)
+# Before: put the wheels the machine lacks into .gpu/wheels on this side (it has no network):
+#   pip download --no-deps -d .gpu/wheels onnxruntime-gpu OpenEXR pyoidn
+# (onnxruntime-gpu is large; the lean carry limit is 64 MiB, so check the size first).
+# Writes to $OUT: bench (mcdenoise bench --device cuda) and driver.txt (whole frames through
+# the driver at 1280x720, numpy prelude against the prelude graph on the device).
+set -euo pipefail
+site="$PWD/.gpu/site"
+mkdir -p "$site" "$OUT"
+python -m pip install -q --no-index --no-deps --target "$site" .gpu/wheels/*.whl
+python -m pip install -q --no-index --no-deps --no-build-isolation --target "$site" .
+export PYTHONPATH="$site"
+nvidia-smi --query-gpu=name,driver_version --format=csv,noheader > "$OUT/gpu.txt" || true
+python -m mcdenoise.runtime.cli bench --device cuda --no-quality --frames 20 --warmup 5 --out "$OUT/bench" \
+  > "$OUT/bench.log" 2>&1 || echo "bench failed (see bench.log)"
+python - > "$OUT/driver.txt" 2>&1 <<'PY'
+import statistics
+from mcdenoise.runtime.denoiser import Denoiser
+from mcdenoise.runtime.frames import Frame
+from mcdenoise.training.harness import synthetic_frame
+from mcdenoise.training.methods import shipped_models
+for path in shipped_models():
+    for prelude in ("numpy", "graph"):
+        den = Denoiser.load(path, providers=["CUDAExecutionProvider", "CPUExecutionProvider"], prelude=prelude,
+                            log=lambda m: None)
+        for t in range(25):
+            den(Frame(**synthetic_frame(1280, 720, t)))
+        rows = den.timings[5:]
+        med = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
+        print(path, prelude, den.session.get_providers()[0], {k: round(v, 2) for k, v in med.items()})
+PY
+cat "$OUT/driver.txt"
