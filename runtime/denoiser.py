@@ -123,7 +123,8 @@ class Denoiser:
           prelude: "numpy" reprojects and accumulates the history in numpy; "graph" with the
             prelude graph (:mod:`runtime.prelude`) on the model's providers; "auto" (default):
             numpy on the CPU provider (faster there: wskpn-3's reprojection 6.7 vs 10.4 ms at
-            256x256, 64 vs 179 ms at 1280x720, 2-vCPU EPYC), the graph on any other.
+            256x256, 64 vs 179 ms at 1280x720 in a one-off run on a 2-vCPU EPYC), the graph on
+            any other.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
