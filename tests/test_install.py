@@ -79,3 +79,25 @@ def test_wheel_alone_runs_the_main_job_outside_the_checkout(wheel, tmp_path):
     proc = subprocess.run([str(mcd), "train", "wskpn-3", "--data", "d", "--out", "r"], cwd=work, env=env,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "torch" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_the_carried_mitsuba_wheel_keeps_only_the_variants_asked_for(tmp_path):
+    """training.carry strips a Mitsuba wheel for a machine without network: the other
+    variants' modules leave the archive and its RECORD, everything else stays."""
+    from mcdenoise.training.carry import strip_wheel
+
+    src, dst = tmp_path / "mitsuba-9-py3-none-any.whl", tmp_path / "out.whl"
+    files = {f"mitsuba/{v}.cpython-311-x86_64-linux-gnu.so": b"x" * 10
+             for v in ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb", "cuda_ad_spectral")}
+    files.update({"mitsuba/__init__.py": b"", "mitsuba/plugins/path.so": b"p"})
+    record = "".join(f"{n},sha256=x,1\n" for n in files) + "mitsuba-9.dist-info/RECORD,,\n"
+    with zipfile.ZipFile(src, "w") as z:
+        for n, data in files.items():
+            z.writestr(n, data)
+        z.writestr("mitsuba-9.dist-info/RECORD", record)
+    assert strip_wheel(src, dst, ("cuda_ad_rgb", "scalar_rgb")) == ["cuda_ad_spectral", "llvm_ad_rgb"]
+    with zipfile.ZipFile(dst) as z:
+        names = set(z.namelist())
+        rec = z.read("mitsuba-9.dist-info/RECORD").decode()
+    assert names == {n for n in files if "llvm" not in n and "spectral" not in n} | {"mitsuba-9.dist-info/RECORD"}
+    assert "llvm_ad_rgb" not in rec and "cuda_ad_rgb" in rec and "plugins/path.so" in rec

@@ -122,7 +122,8 @@ def test_variant_choice(monkeypatch):
     assert llvm_major("/usr/lib/llvm-17/lib/libLLVM.so") == 17
     assert choose_variant("scalar_rgb")[0] == "scalar_rgb"
     with pytest.raises(ValueError, match="unknown variant"):
-        choose_variant("cuda_ad_rgb")
+        choose_variant("optix_rgb")
+    assert choose_variant("cuda_ad_rgb")[0] == "cuda_ad_rgb"     # only when asked: auto never picks it
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM-15.so")
     variant, reason = choose_variant("auto")
     assert variant == "scalar_rgb" and "LLVM 15" in reason
@@ -610,3 +611,15 @@ def test_enclosed_rooms_keep_the_scene_and_close_it(tmp_path):
     fr = read_frame(next(out.glob("scene_*")) / frame_name(1))
     assert (fr.depth > 0).all() and fr.reference.mean() > 0.01
     assert json.loads((out / MANIFEST).read_text())["settings"]["enclosed_probability"] == 1.0
+
+
+def test_cuda_variant_without_a_gpu_is_one_line(tmp_path, capsys):
+    """--variant cuda_ad_rgb on a machine without an NVIDIA GPU: one line saying so."""
+    import shutil
+
+    if shutil.which("nvidia-smi"):
+        pytest.skip("a GPU host: the variant may work here")
+    rc = cli_main(["render", "--out", str(tmp_path / "o"), "--scenes", "1", "--frames", "1", "--size", "16x16",
+                   "--spp", "1", "--ref-spp", "1", "--variant", "cuda_ad_rgb"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 2 and "cuda_ad_rgb" in err and err.startswith("mcdenoise render: error:"), err

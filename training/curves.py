@@ -130,6 +130,7 @@ def add_arguments(p) -> None:
     p.add_argument("--crop", type=int, default=None)
     p.add_argument("--window", type=int, default=None)
     p.add_argument("--spp", type=int, nargs="+", default=None)
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="where every run trains")
     add_seed(p, "initial weights and the order of examples of every run")
     add_threads(p)
 
@@ -144,7 +145,7 @@ def main(args) -> int:
     res = curves(args.spec, args.data, args.test, args.out, sequences=tuple(args.sequences or (None,)),
                  vary=tuple(args.vary) if args.vary else None, steps=args.steps, eval_every=args.eval_every,
                  batch_size=args.batch_size, crop=args.crop, window=args.window, spp=args.spp, seed=args.seed,
-                 threads=args.threads, minutes=1e9)
+                 threads=args.threads, device=args.device, minutes=1e9)
     write(res, args.out, command_line("curves", args))
     print(f"wrote {args.out}/curves.md, curves.json and curves.png")
     return 0

@@ -105,7 +105,7 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
     return outputs
 
 
-def evaluate(model, dataset, protocol: Protocol, batch_size: int = 4) -> dict:
+def evaluate(model, dataset, protocol: Protocol, batch_size: int = 4, device: str = "cpu") -> dict:
     """Validation metrics on the last frame of every window (temporal state warmed up):
     SMAPE, relMSE, PSNR (ANF Eq. 14) of the output and of the noisy input."""
     import torch
@@ -117,10 +117,11 @@ def evaluate(model, dataset, protocol: Protocol, batch_size: int = 4) -> dict:
     with torch.no_grad():
         for i in range(0, len(dataset), batch_size):
             batch = collate([dataset[j] for j in range(i, min(len(dataset), i + batch_size))])
+            batch = {k: v.to(device) for k, v in batch.items()}
             outs = run_window(model, batch, protocol)
-            preds.append(outs[-1]["output"].numpy())
-            refs.append(batch["reference"][:, -1].numpy())
-            noisy.append(batch["color"][:, -1].numpy())
+            preds.append(outs[-1]["output"].cpu().numpy())
+            refs.append(batch["reference"][:, -1].cpu().numpy())
+            noisy.append(batch["color"][:, -1].cpu().numpy())
     model.train()
     p, r, n = (np.concatenate(a).transpose(0, 2, 3, 1) for a in (preds, refs, noisy))
     return {"val_smape": smape(p, r), "val_relmse": relmse(p, r), "val_psnr": psnr(p, r),
@@ -145,6 +146,8 @@ def add_arguments(p):
                         "for learning curves)")
     p.add_argument("--test", default=None, metavar="DIR",
                    help="also score every validation on this held-out folder of sequences (test_* metrics)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="where the model trains (cuda: a GPU; with torchrun, one per process)")
     p.add_argument("--temporal-weight", type=float, default=None,
                    help="weight of the loss of frame differences (ANF §4: 0.25; default: spec)")
     p.add_argument("--val-fraction", type=float, default=0.2,
@@ -179,7 +182,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           crop: int | None = None, seed: int = 0, threads: int = 0, val_fraction: float = 0.2,
           val_every: int = 0, quiet: bool = False, window: int | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
-          max_sequences: int | None = None, test_data: str | None = None) -> dict:
+          max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu") -> dict:
     """Train and return the final metrics row.  See module docstring."""
     import torch
 
@@ -189,7 +192,13 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--spp must be counts >= 1, got {spp}")
     if temporal_weight is not None and not temporal_weight >= 0:
         raise ValueError(f"--temporal-weight must be >= 0, got {temporal_weight}")
-    rank, world = _distributed()
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"--device must be cpu or cuda, got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("--device cuda: this torch sees no CUDA device")
+    rank, world = _distributed(device)
+    if device == "cuda" and world > 1:
+        torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", rank)))
 
     from mcdenoise.training.dataset import SequenceDataset, collate
     from mcdenoise.training.specs import build_model, load_spec
@@ -235,7 +244,9 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if bs % world:
         raise ValueError(f"--batch-size {bs} must be a multiple of the {world} processes")
     torch.manual_seed(config["seed"])
-    model = build_model(spec)
+    model = build_model(spec).to(device)
+    if device == "cuda" and world > 1:
+        model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
     layers = tuple(spec.inputs.layers)
     train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
@@ -248,22 +259,22 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     test_set = None if not config.get("test_data") else SequenceDataset(
         config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
         window=config["window"], augment=False)
-    val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"]}
+    val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"], "device": device}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
     if resume and (run / runs.CHECKPOINT_FILE).exists():
-        ckpt = torch.load(run / runs.CHECKPOINT_FILE, weights_only=False)
+        ckpt = torch.load(run / runs.CHECKPOINT_FILE, weights_only=False, map_location=device)
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         step, epoch, pos, elapsed = ckpt["step"], ckpt["epoch"], ckpt["pos"], ckpt["elapsed"]
-        torch.set_rng_state(ckpt["torch_rng"])
+        torch.set_rng_state(ckpt["torch_rng"].cpu())
     forward = model
     if world > 1:
         import torch.distributed as dist
         from torch.nn.parallel import DistributedDataParallel
 
         dist.barrier()      # the run folder exists before anyone may write into it
-        forward = DistributedDataParallel(model)
+        forward = DistributedDataParallel(model, device_ids=[torch.cuda.current_device()] if device == "cuda" else None)
 
     def save():
         if rank != 0:
@@ -288,12 +299,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
             batch = collate([train_set[i] for i in batch_share(order, pos, bs, rank, world)])
+            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
             outs = run_window(model, batch, protocol, forward=forward)
             loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
             # The global batch's loss (the mean of the processes' equal shares) and whether the
             # first process's clock says stop: every process takes the same decisions.
             elapsed = time.perf_counter() - t_start
-            shared = torch.stack([loss.detach(), torch.tensor(float(budget_s is not None and elapsed >= budget_s))])
+            shared = torch.stack([loss.detach(), torch.tensor(float(budget_s is not None and elapsed >= budget_s),
+                                                              device=loss.device)])
             if world > 1:
                 dist.all_reduce(shared)
                 shared[0] /= world
@@ -330,12 +343,12 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
 
 
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
-              batch_size: int = 1, window: int = 1) -> dict:
+              batch_size: int = 1, window: int = 1, device: str = "cpu") -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
            "final": final, "examples": step * batch_size, "frames_seen": step * batch_size * window,
-           **evaluate(model, val_set, protocol)}
+           **evaluate(model, val_set, protocol, device=device)}
     if test_set is not None:
-        row.update({"test" + k[3:]: v for k, v in evaluate(model, test_set, protocol).items() if k.startswith("val_")})
+        row.update({"test" + k[3:]: v for k, v in evaluate(model, test_set, protocol, device=device).items() if k.startswith("val_")})
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)
@@ -349,6 +362,6 @@ def main(args) -> int:
                 resume=args.resume, batch_size=args.batch_size, crop=args.crop, seed=args.seed,
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
-                max_sequences=args.max_sequences, test_data=args.test)
+                max_sequences=args.max_sequences, test_data=args.test, device=args.device)
     print(json.dumps(row, indent=2))
     return 0

@@ -17,6 +17,7 @@ import sys
 import time
 
 from mcdenoise.runtime.args import add_seed, add_size
+from mcdenoise.training.render.variant import VARIANTS
 
 #: Scene seed = --seed * SCENE_STRIDE + scene index, so held-out splits can be made by seed
 #: and two base seeds never share a scene.
@@ -78,8 +79,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--floor", choices=("scene", "glossy", "mirror"), default="scene",
                    help="procedural floor material: the scene's own (default), glossy silver (GGX alpha 0.05) "
                         "or a silver mirror")
-    p.add_argument("--variant", choices=("auto", "llvm_ad_rgb", "scalar_rgb"), default="auto",
-                   help="Mitsuba variant; auto picks llvm_ad_rgb when an LLVM >= 16 library is found")
+    p.add_argument("--variant", choices=VARIANTS, default="auto",
+                   help="Mitsuba variant; auto picks llvm_ad_rgb when an LLVM >= 16 library is found, else "
+                        "scalar_rgb; cuda_ad_rgb renders on an NVIDIA GPU")
     p.add_argument("--scene", metavar="FILE.xml", help="render a Mitsuba scene file instead of procedural scenes")
     p.add_argument("--camera-path", metavar="FILE.json",
                    help="per-frame to_world matrices for --scene (as written to <seq>/scene/camera_path.json)")

@@ -12,7 +12,7 @@ import os
 import re
 import sys
 
-VARIANTS = ("auto", "llvm_ad_rgb", "scalar_rgb")
+VARIANTS = ("auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb")
 #: Oldest LLVM major version Dr.Jit 1.x runs with (15 segfaults in the first kernel launch).
 MIN_LLVM = 16
 _ENV = "DRJIT_LIBLLVM_PATH"
@@ -52,15 +52,16 @@ def find_llvm(patterns=_SEARCH) -> tuple[str, int] | None:
 
 
 def choose_variant(requested: str = "auto") -> tuple[str, str]:
-    """Resolve ``requested`` (auto | llvm_ad_rgb | scalar_rgb) to a variant and a reason.
+    """Resolve ``requested`` (auto | llvm_ad_rgb | scalar_rgb | cuda_ad_rgb) to a variant and a
+    reason; auto never picks CUDA (a GPU host renders with it when asked).
 
     Sets ``DRJIT_LIBLLVM_PATH`` when an LLVM variant is chosen and the variable is unset.
     Raises ValueError for an unknown name, or for llvm_ad_rgb without a usable LLVM.
     """
     if requested not in VARIANTS:
         raise ValueError(f"unknown variant {requested!r}; choose one of {', '.join(VARIANTS)}")
-    if requested == "scalar_rgb":
-        return "scalar_rgb", "requested with --variant"
+    if requested in ("scalar_rgb", "cuda_ad_rgb"):   # cuda_ad_rgb: an NVIDIA GPU and its driver
+        return requested, "requested with --variant"
     env = os.environ.get(_ENV)
     if env:
         major = llvm_major(env)

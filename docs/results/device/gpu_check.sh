@@ -10,7 +10,10 @@ set -euo pipefail
 site="$PWD/.gpu/site"
 mkdir -p "$site" "$OUT"
 python -m pip install -q --no-index --no-deps --target "$site" .gpu/wheels/*.whl
-python -m pip install -q --no-index --no-deps --no-build-isolation --target "$site" .
+# The package without building it: its namespace as links to the checkout's folders.
+mkdir -p "$site/mcdenoise"
+cp mcdenoise/__init__.py "$site/mcdenoise/"
+for d in runtime training export; do ln -sfn "$PWD/$d" "$site/mcdenoise/$d"; done
 export PYTHONPATH="$site"
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader > "$OUT/gpu.txt" || true
 python -m mcdenoise.runtime.cli bench --device cuda --no-quality --frames 20 --warmup 5 --out "$OUT/bench" \

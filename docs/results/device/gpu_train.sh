@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Render and train at scale on a lent GPU machine, one command (issue 15). Not yet run: no GPU
+# was lent to the session that wrote it. The machine has torch (CUDA), onnx and numpy but no
+# network, Mitsuba or OpenEXR; so first, here:
+#   python -m mcdenoise.training.carry --out .gpu/wheels --variants cuda_ad_rgb   # ~55 MB (Mitsuba stripped)
+# then, with the device tool (carry [".gpu"]; the tracked tree is ~8 MB more):
+#   bash docs/results/device/gpu_train.sh SPEC SCENES MINUTES
+# It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
+# them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
+# spp drawn from 1..8, 8-frame windows and the temporal term, and leaves the run folder in
+# $OUT for `mcdenoise export` here (export needs onnxruntime, which the machine lacks).
+set -euo pipefail
+spec=${1:-wskpn-6}; scenes=${2:-32}; minutes=${3:-4}
+site=/tmp/mcdenoise-site
+mkdir -p "$site/mcdenoise" "$OUT"
+python -m pip install -q --no-index --no-deps --target "$site" .gpu/wheels/*.whl
+# The package without building it: its namespace as links to the checkout's folders
+# (runtime.data_path resolves the links, so the shipped data is found in the checkout).
+cp mcdenoise/__init__.py "$site/mcdenoise/"
+for d in runtime training export; do ln -sfn "$PWD/$d" "$site/mcdenoise/$d"; done
+export PYTHONPATH="$site"
+mcd() { python -m mcdenoise.runtime.cli "$@"; }
+nvidia-smi --query-gpu=name,driver_version --format=csv,noheader | tee "$OUT/gpu.txt" || true
+start=$(date +%s)
+mcd render --out /tmp/data/shard-10 --scenes "$scenes" --frames 8 --size 256x256 --spp 8 --ref-spp 256 \
+  --seed 10 --enclosed 0.5 --variant cuda_ad_rgb --workers 2 2> "$OUT/render.log"
+echo "render: $(( $(date +%s) - start )) s for $scenes scenes" | tee "$OUT/times.txt"
+cp /tmp/data/shard-10/manifest.json "$OUT/manifest.json"
+start=$(date +%s)
+mcd train "$spec" --data /tmp/data --out "$OUT/run-$spec" --device cuda --minutes "$minutes" --steps 1000000 \
+  --spp 1 2 4 8 --window 8 --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
+  2> "$OUT/train.log"
+echo "train: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
+tail -n 3 "$OUT/train.log"
