@@ -44,7 +44,12 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
         assert b"mcdenoise bench --quick" in data      # the command, in the PNG's metadata
     quality = _rows(out / "bench_quality.csv")
+    bare = [r for r in quality if r["method"].endswith(" (no history)")]
+    quality = [r for r in quality if r not in bare]
     assert {r["method"] for r in quality} == set(methods)
+    # the long sets also score every model reset before each frame
+    assert {r["method"] for r in bare} == {m + " (no history)" for m in models}
+    assert {r["set"] for r in bare} == {"long-quick", "long-quick after warm-up"}
     # tiny set: 4 stored spp -> stills at 1, 2, 4; sequences at 1 and 4; the tiny set again
     # standing in for the long sequences, with scores after a 1-frame warm-up
     assert {(r["set"], r["spp"]) for r in quality} == {
@@ -56,6 +61,7 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
         assert int(r["frames"]) == int(full[key]["frames"]) - 2        # 2 sequences, 1 frame each left out
         assert float(r["wte"]) > 0 and float(full[key]["wte"]) > 0
     assert "### Long sequences" in md and "after the first 1 of each sequence" in md
+    assert f"| {models[0]} (no history) |" in md
     for r in quality:
         assert np.isfinite(float(r["psnr"])) and r["flip"] and r["ssim"]
     psnr = {(r["method"], r["set"], r["spp"]): float(r["psnr"]) for r in quality}

@@ -121,7 +121,7 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
 
 
 def quality_part(models, builtins, stills, data, quick, threads, log, long=True):
-    from mcdenoise.training.methods import load_method
+    from mcdenoise.training.methods import WithoutHistory, load_method
 
     def rendered(ts: TestSet, given: str | None) -> tuple[str, float | None]:
         if given:
@@ -151,6 +151,8 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
     order = ["noisy"] + [m.name for m in methods if m.name != "noisy"]
     methods = sorted(methods, key=lambda m: order.index(m.name))
     qual = {}
+    # The long sets also score each model reset before every frame: what its history earns.
+    bare = [WithoutHistory(load_method(p, threads=threads)) for p in models]
     for kind, folder, spps, warmup in sets:
         t0 = time.perf_counter()
         seqs = read_sequences(folder, stills=(kind == "stills"))
@@ -163,7 +165,7 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
                           "scene_seeds": sorted({f.meta.get("scene_seed") for s in seqs for f in s} - {None}),
                           "warmup": warmup}
         for spp in use:
-            qual[(kind, spp)] = run_methods(methods, seqs, spp, log=log, warmup=warmup)
+            qual[(kind, spp)] = run_methods(methods + (bare if warmup else []), seqs, spp, log=log, warmup=warmup)
             log(f"quality {kind} at {spp} spp: " + ", ".join(f"{k} {v['psnr']:.2f} dB"
                                                              for k, v in qual[(kind, spp)].items()))
         testsets[kind]["seconds"] = time.perf_counter() - t0

@@ -108,6 +108,24 @@ class ONNXModel:
         self.denoiser.reset()
 
 
+class WithoutHistory:
+    """A temporal method reset before every frame: what its history earns is its score minus
+    this one's (a history must never make a sequence worse than none)."""
+
+    SUFFIX = " (no history)"
+
+    def __init__(self, method):
+        self.method = method
+        self.name = method.name + self.SUFFIX
+
+    def __call__(self, frame) -> np.ndarray:
+        self.method.reset()
+        return self.method(frame)
+
+    def reset(self) -> None:
+        self.method.reset()
+
+
 #: onnxruntime execution providers per ``device`` argument.
 PROVIDERS = {"cpu": ["CPUExecutionProvider"], "cuda": ["CUDAExecutionProvider", "CPUExecutionProvider"]}
 

@@ -16,6 +16,7 @@ import numpy as np
 from mcdenoise.runtime import DATA_ROOT, timing
 from mcdenoise.runtime.frames import write_png
 from mcdenoise.runtime.transfer import reinhard_gamma
+from mcdenoise.training.methods import WithoutHistory
 from mcdenoise.training.scoring import pareto_front
 
 def rel_path(path, base: str | os.PathLike | None = None) -> str:
@@ -223,7 +224,8 @@ def _long_tables(res, order, prefix: str = "long-", title: str = "Long sequences
          f"first {first['warmup']} of each sequence, as a real-time user sees it, with TRMAE (ANF Eq. 16) and WTE, the "
          "warped temporal error (`training.metrics.warped_temporal_error`: the previous output warped along the true "
          "motion against the current, relative to the same for the reference; 1 is as steady as the reference, more "
-         "is flicker, less is lag) over the same frames."]
+         "is flicker, less is lag) over the same frames. Rows '(no history)': the same model reset before "
+         "every frame, so the difference is what its history earns."]
     refs = {s: ts.get(f"{s}:reference_db") for s in sets}
     if any(v is not None for v in refs.values()):
         L[-1] += (" Reference check (`mcdenoise render ... --check-references`: a second reference of each first "
@@ -235,7 +237,9 @@ def _long_tables(res, order, prefix: str = "long-", title: str = "Long sequences
     for spp in spps:
         head = "| method | " + " | ".join(f"{s[cut:]} PSNR all | after | TRMAE | WTE" for s in sets) + " |"
         L += [f"{spp} spp:", "", head, "|---|" + "---:|" * (4 * len(sets))]
-        for m in order:
+        bare = [m + WithoutHistory.SUFFIX for m in order if any(m + WithoutHistory.SUFFIX in q.get((s, spp), {})
+                                                               for s in sets)]
+        for m in [*order, *bare]:
             cells = []
             for s in sets:
                 v = q.get((s, spp), {}).get(m)
