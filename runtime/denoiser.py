@@ -23,7 +23,7 @@ import os
 import sys
 import tempfile
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -110,7 +110,8 @@ class Denoiser:
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
-             driver_threads: int | None = None, prelude: str = "auto") -> "Denoiser":
+             driver_threads: int | None = None, prelude: str = "auto",
+             accumulate_alpha: float | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -125,6 +126,8 @@ class Denoiser:
             numpy on the CPU provider (faster there: wskpn-3's reprojection 6.7 vs 10.4 ms at
             256x256, 64 vs 179 ms at 1280x720 in a one-off run on a 2-vCPU EPYC), the graph on
             any other.
+          accumulate_alpha: the current frame's weight for every accumulated input, in (0, 1],
+            instead of the file's (1: no accumulation); a run-time knob, the graph unchanged.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
@@ -171,8 +174,14 @@ class Denoiser:
             from mcdenoise.runtime.prelude import PreludeGraph
 
             graph = PreludeGraph(providers=sess.get_providers(), threads=threads)
-        return cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
-                   driver_threads=driver_threads, prelude=graph)
+        den = cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
+                  driver_threads=driver_threads, prelude=graph)
+        if accumulate_alpha is not None:
+            if not 0 < accumulate_alpha <= 1:
+                raise ValueError(f"accumulate_alpha must be in (0, 1], got {accumulate_alpha}")
+            den.protocol = replace(den.protocol, accumulate=tuple(
+                (layer, inp, float(accumulate_alpha)) for layer, inp, _ in den.protocol.accumulate))
+        return den
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:

@@ -239,3 +239,22 @@ def test_score_pools_frames_of_several_sizes():
     assert mixed["trmae"] == pytest.approx(want, rel=1e-12) and mixed["frames"] == 6
     with pytest.raises(ValueError, match="frame 1 is"):
         score([img(20, 24), img(20, 24)], [img(20, 24), img(20, 22)], [2])
+
+
+def test_evaluate_scores_after_a_warmup_and_with_another_alpha(tiny_dataset, tmp_path, capsys):
+    import json
+
+    wskpn = next(p for p in shipped_models() if "wskpn-3" in p)
+    out = tmp_path / "e.json"
+    for alpha in ("0.2", "1"):
+        assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--spp", "1", "--warmup", "1", "--alpha", alpha,
+                         "--no-oidn", "--json", str(out)]) == 0
+        res = json.loads(out.read_text())
+        assert res["_setup"]["warmup"] == 1 and res["_setup"]["accumulate_alpha"] == float(alpha)
+        a = res["wskpn-3"]["after_warmup"]
+        assert a["frames"] == res["wskpn-3"]["frames"] - 2 and np.isfinite(a["psnr"]) and a["wte"] > 0
+        if alpha == "0.2":
+            low = res["wskpn-3"]["after_warmup"]["psnr"]
+    assert a["psnr"] != low                 # the weight changed what the history gave
+    assert "after warm-up" in capsys.readouterr().out
+    assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--alpha", "0", "--no-oidn"]) == 2

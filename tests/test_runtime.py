@@ -596,3 +596,27 @@ def test_the_shipped_prelude_graph_is_the_torch_prelude():
         got = sess.run(list(OUTPUTS), f)
         np.testing.assert_allclose(got[0], want.numpy(), rtol=1e-5, atol=1e-6)
         np.testing.assert_array_equal(got[1], hist.numpy())
+
+
+def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_file):
+    """accumulate_alpha: a run-time weight for every accumulated input. At 1 the accumulation is
+    the frame itself, so a model whose only history is its accumulated colour (wskpn) gives
+    the images of the same model reset before every frame, to the bit (auto-exposure off: a
+    reset would pick a new exposure at every frame)."""
+    path, spec, _ = model_file
+    frames = [_frame(t, 30, 44) for t in range(3)]
+    one = Denoiser.load(path, log=lambda m: None, accumulate_alpha=1.0, autoexposure=False)
+    assert all(a[2] == 1.0 for a in one.protocol.accumulate)
+    if spec.accumulate and not spec.state:
+        fresh = Denoiser.load(path, log=lambda m: None, autoexposure=False)
+        for f in frames:
+            fresh.reset()
+            np.testing.assert_array_equal(one(f), fresh(f))
+    half = Denoiser.load(path, log=lambda m: None, accumulate_alpha=0.5)
+    base = Denoiser.load(path, log=lambda m: None)
+    outs = [(half(f), base(f)) for f in frames]
+    if spec.accumulate:
+        assert not np.allclose(*outs[-1])          # the weight reaches the frames with history
+    np.testing.assert_array_equal(*outs[0])        # and nothing before there is a history
+    with pytest.raises(ValueError, match="accumulate_alpha"):
+        Denoiser.load(path, log=lambda m: None, accumulate_alpha=0.0)

@@ -30,17 +30,19 @@ def default_methods(models: list[str], oidn: bool = True) -> list[str]:
 
 
 def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, threads: int = 0,
-             stills: bool = False, log=print) -> dict:
-    """{method: {psnr, ssim, flip, smape, relmse, trmae, frames}} over every sequence in
-    ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names; ``noisy`` and
-    (with ``oidn``) ``oidn-high`` are always added."""
+             stills: bool = False, log=print, warmup: int = 0, accumulate_alpha: float | None = None) -> dict:
+    """{method: {psnr, ssim, flip, smape, relmse, trmae, wte, frames[, after_warmup]}} over every
+    sequence in ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names;
+    ``noisy`` and (with ``oidn``) ``oidn-high`` are always added. ``warmup``: also score the
+    frames after the first ``warmup`` of each sequence; ``accumulate_alpha``: every model's
+    accumulation weight instead of its file's."""
     sources = default_methods(models, oidn)
-    methods = [load_method(n, threads=threads) for n in sources]
+    methods = [load_method(n, threads=threads, accumulate_alpha=accumulate_alpha) for n in sources]
     check_distinct({n: m.name for n, m in zip(sources, methods)})
     seqs = read_sequences(data, stills)
-    results = run_methods(methods, seqs, spp, log=log)
+    results = run_methods(methods, seqs, spp, log=log, warmup=warmup)
     results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
-                         "stills": bool(stills)}
+                         "stills": bool(stills), "warmup": warmup, "accumulate_alpha": accumulate_alpha}
     log(format_results(results))
     return results
 
@@ -54,13 +56,15 @@ def format_results(results: dict) -> str:
     n = next(iter(v["frames"] for k, v in results.items() if k != "_setup"))
     lines = [f"{setup.get('sequences')} sequences, {n} frames at {setup.get('spp')} spp from "
              f"{setup.get('data')}{' (first frames, no history)' if setup.get('stills') else ''}", "",
-             "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "| method | PSNR dB | SSIM | FLIP | SMAPE | relMSE | TRMAE | WTE | after warm-up: PSNR | TRMAE | WTE |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for k, v in results.items():
         if k == "_setup":
             continue
+        a = v.get("after_warmup") or {}
         lines.append(f"| {k} | {v['psnr']:.2f} | {_f(v.get('ssim'), '.4f')} | {_f(v.get('flip'), '.4f')} | "
-                     f"{v['smape']:.4f} | {v['relmse']:.4f} | {_f(v['trmae'], '.4f')} |")
+                     f"{v['smape']:.4f} | {v['relmse']:.4f} | {_f(v['trmae'], '.4f')} | {_f(v.get('wte'), '.3f')} | "
+                     f"{_f(a.get('psnr'), '.2f')} | {_f(a.get('trmae'), '.4f')} | {_f(a.get('wte'), '.3f')} |")
     return "\n".join(lines)
 
 
@@ -72,12 +76,19 @@ def add_arguments(p):
     p.add_argument("--stills", action="store_true",
                    help="score only each sequence's first frame, without history")
     p.add_argument("--no-oidn", action="store_true", help="do not add Open Image Denoise (quality high)")
+    p.add_argument("--warmup", type=int, default=0,
+                   help="also score the frames after the first N of each sequence (a history in full swing)")
+    p.add_argument("--alpha", type=float, default=None,
+                   help="every model's accumulation weight of the current frame, in (0, 1], instead of its file's")
     p.add_argument("--json", default=None, help="write the results as JSON here")
     add_threads(p)
 
 
 def main(args) -> int:
-    res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads, args.stills)
+    if args.warmup < 0:
+        raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
+    res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads, args.stills,
+                   warmup=args.warmup, accumulate_alpha=args.alpha)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0
