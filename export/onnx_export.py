@@ -34,8 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from mcdenoise.runtime.args import CommandError
-from mcdenoise.runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, Contract, contract_metadata, node_prefix,
-                              parse_contract, state_input_name, state_output_name)
+from mcdenoise.runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, SAMPLES_INPUT, SAMPLES_LAYOUT, Contract,
+                              contract_metadata, node_prefix, parse_contract, state_input_name, state_output_name)
+from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.frames import PIXEL_LAYERS
 
 DEFAULT_OPSET = 17
@@ -43,6 +44,8 @@ DEFAULT_OPSET = 17
 #: not square, and a multiple of 4 neither in H nor in W).
 EXPORT_SIZE = (64, 64)
 CHECK_SIZE = (54, 78)
+#: Samples per pixel of a per-sample model's traced input, and of its parity check input.
+EXPORT_SPP, CHECK_SPP = 4, 3
 #: Max relative error of the float32 graph vs torch float64, see :func:`parity_error`.
 PARITY_TOL = 1e-4
 #: ... or this many times torch float32's own error vs float64, if that is larger.
@@ -154,6 +157,14 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
                            "layout": LAYOUT, "transfer": "linear"})
         elif name == HISTORY:
             inputs.append({"name": name, "layer": None, "channels": 1, "layout": LAYOUT, "transfer": "linear"})
+        elif name == SAMPLES_INPUT:
+            groups = [{"group": g, "channels": sample_group_channels(g), "transfer": t}
+                      for g, t in spec.inputs.sample_groups]
+            inputs.append({"name": name, "layer": None, "kind": "samples", "groups": groups,
+                           "channels": sum(g["channels"] for g in groups), "layout": SAMPLES_LAYOUT,
+                           "transfer": "linear"})
+        elif name in {st.name for st in spec.setting}:
+            continue                                   # a setting: KEY_SETTINGS, not an image input
         else:
             raise ValueError(f"model input {name!r} is neither a layer of the spec, a state input nor {HISTORY!r}")
     outputs = [{"name": model.output_names[0], "channels": 3, "layout": LAYOUT, "transfer": "linear"}]
@@ -168,6 +179,8 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
         history=HISTORY if spec.state else "",
         accumulate=tuple({"layer": a.layer, "input": a.layer, "channels": _LAYER_CHANNELS[a.layer], "alpha": a.alpha}
                          for a in spec.accumulate),
+        settings=tuple({"name": st.name, "input": st.name, "default": st.default, "min": st.min, "max": st.max,
+                        "step": st.step} for st in spec.setting),
         paper=dict(spec.paper), export=dict(export_info or {}))
 
 
@@ -190,7 +203,7 @@ def parity_errors(model, run_graph, feeds: dict[str, np.ndarray]) -> dict[str, t
 
     ref32 = _torch_outputs(model, feeds)
     ref64 = _torch_outputs(copy.deepcopy(model).double().eval(),
-                           {k: v.astype(np.float64) for k, v in feeds.items()})
+                           {k: v.astype(np.float64) if v.dtype == np.float32 else v for k, v in feeds.items()})
     got = run_graph(feeds)
     return {n: (parity_error(g, r64), parity_error(r32, r64))
             for n, g, r32, r64 in zip(model.output_names, got, ref32, ref64)}
@@ -229,9 +242,12 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
     was_training = model.training
     model.eval()
     deployed = model.deploy() if hasattr(model, "deploy") else model
-    feeds = example_inputs(deployed, 1, *export_size, seed=seed)
+    feeds = example_inputs(deployed, 1, *export_size, seed=seed, spp=EXPORT_SPP)
     args = tuple(torch.from_numpy(feeds[n]) for n in deployed.input_names)
-    axes = {n: {0: "N", 2: "H", 3: "W"} for n in (*deployed.input_names, *deployed.output_names)}
+    settings = set(getattr(deployed, "settings", {}))
+    axes = {n: {0: "N", 2: "H", 3: "W"} for n in (*deployed.input_names, *deployed.output_names) if n not in settings}
+    if SAMPLES_INPUT in axes:
+        axes[SAMPLES_INPUT] = {0: "N", 1: "S", 3: "H", 4: "W"}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
@@ -244,12 +260,19 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
 
         proto = onnx.load(str(tmp))
         tidy_graph(proto.graph)
+        scripted = getattr(deployed, "scripted_stage", None)
+        if scripted:
+            # TorchScript functions (ANF's tap loop) export without a module scope: the model
+            # names the one stage that calls them.
+            for n in proto.graph.node:
+                if not n.name.startswith(tuple(node_prefix(st) for st in spec.stages)):
+                    n.name = node_prefix(scripted) + (n.name or n.op_type)
         bad = unstaged_nodes(proto.graph, spec.stages)
         if bad:
             raise ExportError(f"{spec.name}: {len(bad)} graph node(s) outside every stage "
                               f"{list(spec.stages)}, e.g. {bad[:5]}; move their ops into a stage module")
 
-        check_feeds = example_inputs(model, 2, *check_size, seed=seed + 1)
+        check_feeds = example_inputs(model, 2, *check_size, seed=seed + 1, spp=CHECK_SPP)
         so = ort.SessionOptions()
         so.log_severity_level = 3
         sess = ort.InferenceSession(proto.SerializeToString(), so, providers=["CPUExecutionProvider"])

@@ -16,6 +16,11 @@ The model interface the contract describes (every method follows it, see
   :data:`HISTORY` (N, 1, H, W) in [0, 1], the reprojection-validity mask (only when the model
   has state).  A layer the contract lists under ``accumulate`` is fed as the driver's temporal
   accumulation of that layer (:func:`runtime.temporal.accumulate`), not the frame's value;
+* a per-sample model (format 3) also takes :data:`SAMPLES_INPUT` (N, S, F, H, W), layout
+  :data:`SAMPLES_LAYOUT`, S dynamic: the frame's S samples of every pixel (uniform S; the
+  frame format stores S samples for every pixel), their feature groups listed in the input's
+  ``groups`` (:func:`runtime.inputs.sample_inputs` builds it), and any int64 scalar settings
+  (:data:`KEY_SETTINGS`, e.g. ANF's kernel size) after the other inputs;
 * outputs: :data:`OUTPUT` (N, 3, H, W) linear HDR, then ``next_<name>`` per state entry;
 * graph node names start with ``/<stage>/`` for one of the contract's stages, so a profiler's
   per-node times sum to per-stage times (:meth:`Contract.stage_of`).
@@ -27,8 +32,9 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 #: Version of the metadata layout below; a reader refuses files with a newer one.  2 added
-#: :data:`KEY_ACCUMULATE` (a version-1 reader would feed the raw layer: silently wrong).
-FORMAT_VERSION = 2
+#: :data:`KEY_ACCUMULATE` (a version-1 reader would feed the raw layer: silently wrong); 3 the
+#: per-sample input (:data:`SAMPLES_LAYOUT`) and :data:`KEY_SETTINGS`.
+FORMAT_VERSION = 3
 #: Every mcdenoise key starts with this.
 PREFIX = "mcdenoise."
 
@@ -45,6 +51,8 @@ KEY_STATE = PREFIX + "state"
 KEY_HISTORY = PREFIX + "history_input"
 #: Optional (absent: nothing accumulated); format version 2 and later.
 KEY_ACCUMULATE = PREFIX + "accumulate"
+#: Optional (absent: no run-time settings); format version 3 and later.
+KEY_SETTINGS = PREFIX + "settings"
 KEY_PAPER = PREFIX + "paper"
 KEY_EXPORT = PREFIX + "export"
 #: Keys a file must have (KEY_EXPORT is informational and optional).
@@ -58,6 +66,9 @@ HISTORY = "history"
 STATE_INPUT_PREFIX = "prev_"
 STATE_OUTPUT_PREFIX = "next_"
 LAYOUT = "NCHW"
+#: The per-sample input of a per-sample model, and its layout (N, S, F, H, W).
+SAMPLES_INPUT = "samples"
+SAMPLES_LAYOUT = "NSCHW"
 
 
 def state_input_name(state: str) -> str:
@@ -88,6 +99,10 @@ class Contract:
     history: name of the history-mask input ("" when the model has no state)
     accumulate: {"layer", "input" (graph input name), "channels", "alpha"}: inputs the driver
              feeds as their temporal accumulation with current-frame weight ``alpha``
+    settings: {"name", "input", "default", "min", "max", "step"}: int64 scalar inputs the driver
+             feeds (a run-time knob such as ANF's kernel size)
+    A per-sample input has layout "NSCHW", "kind": "samples" and "groups": [{"group",
+    "channels", "transfer" (the curve the graph applies)}], fed linear.
     paper:   the paper's reference timing row: "table", "method", "device", "resolution"
              strings and "<stage>_ms" / "total_ms" numbers (milliseconds on the paper's GPU)
     export:  informational: opset, torch version, parity error measured at export
@@ -105,6 +120,7 @@ class Contract:
     state: tuple
     history: str
     accumulate: tuple = ()
+    settings: tuple = ()
     paper: dict = field(default_factory=dict)
     export: dict = field(default_factory=dict)
 
@@ -115,6 +131,11 @@ class Contract:
     @property
     def output_names(self) -> list[str]:
         return [o["name"] for o in self.outputs]
+
+    @property
+    def samples_input(self) -> dict | None:
+        """The per-sample input entry (layout :data:`SAMPLES_LAYOUT`), or None for a pixel model."""
+        return next((i for i in self.inputs if i["layout"] == SAMPLES_LAYOUT), None)
 
     @property
     def temporal(self) -> bool:
@@ -191,8 +212,14 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
     in_names = [i["name"] for i in inputs]
     out_names = [o["name"] for o in outputs]
     for t in inputs + outputs:
-        if t["layout"] != LAYOUT:
-            raise ValueError(f"model tensor {t['name']!r} has layout {t['layout']!r}; only {LAYOUT} is supported")
+        if t["layout"] == SAMPLES_LAYOUT and t in inputs and version >= 3:
+            groups = t.get("groups")
+            if not isinstance(groups, list) or sum(int(g.get("channels", 0)) for g in groups) != t["channels"]:
+                raise ValueError(f"model input {t['name']!r}: per-sample groups {groups!r} do not add up to "
+                                 f"{t['channels']} channels")
+        elif t["layout"] != LAYOUT:
+            raise ValueError(f"model tensor {t['name']!r} has layout {t['layout']!r}; only {LAYOUT} "
+                             f"(and {SAMPLES_LAYOUT} for a per-sample input) is supported")
     if not out_names or out_names[0] != OUTPUT:
         raise ValueError(f"model metadata {KEY_OUTPUTS!r}: first output must be {OUTPUT!r}, got {out_names[:1]}")
     for s in state:
@@ -213,10 +240,17 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
                              f"got {alpha!r}")
     if len({a["input"] for a in accumulate}) != len(accumulate):
         raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: an input is accumulated twice")
+    settings = _check_list(KEY_SETTINGS, js(KEY_SETTINGS), ("name", "input", "default", "min", "max", "step")) \
+        if KEY_SETTINGS in meta else ()
+    for st in settings:
+        ok = all(isinstance(st[k], int) and not isinstance(st[k], bool) for k in ("default", "min", "max", "step"))
+        if not ok or st["step"] < 1 or not st["min"] <= st["default"] <= st["max"]:
+            raise ValueError(f"model metadata {KEY_SETTINGS!r}: setting {st['name']!r} is malformed ({st})")
     return Contract(version=version, spec_name=meta[KEY_SPEC_NAME], model_type=meta[KEY_MODEL_TYPE],
                     spec_toml=meta[KEY_SPEC_TOML], spec_hash=meta[KEY_SPEC_HASH],
                     code_hash=meta[KEY_CODE_HASH], inputs=inputs, outputs=outputs, stages=stages,
-                    state=state, history=history, accumulate=accumulate, paper=paper, export=export)
+                    state=state, history=history, accumulate=accumulate, settings=settings, paper=paper,
+                    export=export)
 
 
 def contract_metadata(contract: Contract) -> dict[str, str]:
@@ -237,6 +271,7 @@ def contract_metadata(contract: Contract) -> dict[str, str]:
         KEY_STATE: dump(list(contract.state)),
         KEY_HISTORY: contract.history,
         KEY_ACCUMULATE: dump(list(contract.accumulate)),
+        **({KEY_SETTINGS: dump(list(contract.settings))} if contract.settings else {}),
         KEY_PAPER: dump(contract.paper),
         KEY_EXPORT: dump(contract.export),
     }

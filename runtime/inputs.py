@@ -296,3 +296,64 @@ def frame_inputs(frame: Frame, layers, report: SanitizeReport | None = None) -> 
     """The model inputs for ``layers`` as a dict name -> (1, C, H, W) float32, sanitised,
     normals in screen space.  Raises FrameError naming the frame and the missing layer."""
     return model_inputs(frame_planes(frame, layers, report), layers, frame.meta)
+
+
+#: Per-sample groups holding radiance: sanitised as radiance and auto-exposed like ``color``.
+RADIANCE_SAMPLE_GROUPS = ("radiance", "diffuse_radiance", "specular_radiance")
+
+
+def sample_group_channels(group: str) -> int:
+    """Channels of a per-sample group (stored or derived); ValueError naming the known ones."""
+    from mcdenoise.runtime.frames import DERIVED_SAMPLE_GROUPS, SAMPLE_GROUPS
+
+    if group in DERIVED_SAMPLE_GROUPS:
+        return 3
+    if group not in SAMPLE_GROUPS:
+        raise ValueError(f"unknown per-sample group {group!r}; known: {list(SAMPLE_GROUPS) + list(DERIVED_SAMPLE_GROUPS)}")
+    return SAMPLE_GROUPS[group].stop - SAMPLE_GROUPS[group].start
+
+
+def sample_channels(groups, which: str) -> list[int]:
+    """Channel indices of the per-sample input laid out as ``groups`` (names, in order):
+    ``which`` = "radiance" (the auto-exposed ones) or "screen_xy" (the x, y of ``normal``,
+    which image flips and rotations act on)."""
+    out, c = [], 0
+    for g in groups:
+        n = sample_group_channels(g)
+        if which == "radiance" and g in RADIANCE_SAMPLE_GROUPS:
+            out += list(range(c, c + n))
+        elif which == "screen_xy" and g == "normal":
+            out += [c, c + 1]
+        c += n
+    return out
+
+
+def sample_inputs(frame: Frame, groups, report: SanitizeReport | None = None, scale=None) -> np.ndarray:
+    """The per-sample input of a model reading ``groups`` (names, in order): (1, S, F, H, W)
+    float32 from ``frame.samples`` (S, H, W, F_stored), every pixel with the frame's S samples.
+    Sanitised as the pixel layers are (radiance groups like ``color``, the rest non-finite ->
+    :data:`NONFINITE_FILL` or 0), radiance groups times ``scale`` (the auto-exposure factor, or
+    None), normals in screen space (:func:`screen_normals`).  The one definition for the
+    dataset and the driver; raises FrameError when the frame has no per-sample layers."""
+    from mcdenoise.runtime.frames import FrameError
+
+    report = SanitizeReport() if report is None else report
+    if frame.samples is None:
+        raise FrameError(f"{frame.path or 'frame'}: this model reads per-sample data (sample<i>.* layers) and "
+                         "the frame has none; render with 'mcdenoise render' (without --pixel-only) or write the "
+                         "renderer's samples as sample<i>.* channels (runtime/frames.py)")
+    s, h, w, _ = frame.samples.shape
+    out = np.empty((1, s, sum(sample_group_channels(g) for g in groups), h, w), np.float32)
+    c = 0
+    for g in groups:
+        arr = frame.sample_feature(g)
+        if g == "normal":
+            arr = screen_normals(arr, frame.meta)
+        n = arr.shape[-1]
+        block = out[0, :, c:c + n]
+        block[...] = arr.transpose(0, 3, 1, 2)
+        _sanitize_inplace(block, g in RADIANCE_SAMPLE_GROUPS, "sample " + g if g not in NONFINITE_FILL else g, report)
+        if scale is not None and g in RADIANCE_SAMPLE_GROUPS:
+            block *= np.float32(scale)
+        c += n
+    return out

@@ -12,6 +12,18 @@ hyper-parameters.  Layout of ``models_spec/<name>.toml``::
     layers = ["color", "albedo", "normal", "depth"]   # runtime.frames.PIXEL_LAYERS names
     transfer = "gamma"                                # runtime.transfer name the model applies
 
+    samples = [                      # per-sample models (ANF, NDLE): the groups of the "samples"
+      { group = "diffuse_radiance", transfer = "log1p" },   # input, runtime.frames sample groups
+      { group = "normal" },                                 # (or derived ones), in this order
+    ]
+
+    [[setting]]                      # run-time knobs fed as int64 scalar inputs, zero or more
+    name = "kernel_size"
+    default = 13
+    min = 1
+    max = 31
+    step = 2                         # allowed: min, min + step, ... <= max
+
     [[state]]                        # temporal state tensors the model carries, zero or more
     name = "accum"
     channels = 3
@@ -50,8 +62,9 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Literal, Mapping
 
 from mcdenoise.runtime import data_path
-from mcdenoise.runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
+from mcdenoise.runtime.contract import HISTORY, OUTPUT, SAMPLES_INPUT, state_input_name, state_output_name
 from mcdenoise.runtime.frames import PIXEL_LAYERS
+from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.transfer import TRANSFERS
 
 #: Folder holding the shipped specs, one ``<name>.toml`` each.
@@ -215,12 +228,30 @@ def parse_table(cls: type, table: Mapping[str, Any], where: str):
 # ----------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
+class SampleGroupSpec:
+    """One per-sample feature group of the ``samples`` input: ``group`` a
+    :data:`runtime.frames.SAMPLE_GROUPS` name or a derived one
+    (:data:`runtime.frames.DERIVED_SAMPLE_GROUPS`); ``transfer`` the curve the model's graph
+    applies to it (the driver feeds every group linear, sanitised and auto-exposed)."""
+
+    group: str
+    transfer: str = "linear"
+
+    def __post_init__(self):
+        sample_group_channels(self.group)        # ValueError naming the known groups
+        if self.transfer not in TRANSFERS:
+            raise ValueError(f"transfer of {self.group!r}: unknown {self.transfer!r}; known: {sorted(TRANSFERS)}")
+
+
+@dataclass(frozen=True)
 class InputsSpec:
     """``layers``: pixel layers fed to the model, in input order; ``transfer``: the curve
-    (runtime.transfer name) the model applies to colour inside its graph."""
+    (runtime.transfer name) the model applies to colour inside its graph; ``samples``: the
+    per-sample feature groups of the ``samples`` input (empty: a pixel model)."""
 
     layers: tuple[str, ...]
     transfer: str = "linear"
+    samples: tuple[SampleGroupSpec, ...] = ()
 
     def __post_init__(self):
         names = [l.name for l in PIXEL_LAYERS]
@@ -233,6 +264,35 @@ class InputsSpec:
             raise ValueError("layers: at least one layer is needed")
         if self.transfer not in TRANSFERS:
             raise ValueError(f"transfer: unknown {self.transfer!r}; known: {sorted(TRANSFERS)}")
+        groups = [g.group for g in self.samples]
+        if len(set(groups)) != len(groups):
+            raise ValueError(f"samples: duplicate groups in {groups}")
+
+    @property
+    def sample_groups(self) -> tuple[tuple[str, str], ...]:
+        """(group, transfer) of each per-sample group, in input order."""
+        return tuple((g.group, g.transfer) for g in self.samples)
+
+
+@dataclass(frozen=True)
+class SettingSpec:
+    """A run-time knob (ANF's kernel size, §3.4): an int64 scalar graph input named ``name``
+    that the driver feeds (``default`` unless the user picks another allowed value: ``min``,
+    ``min + step``, ... up to ``max``); changing it needs no re-export and no re-load."""
+
+    name: str
+    default: int
+    min: int
+    max: int
+    step: int = 1
+
+    def __post_init__(self):
+        if not _IDENT_RE.match(self.name):
+            raise ValueError(f"name {self.name!r} must be a lower-case identifier")
+        if self.step < 1 or self.min > self.max:
+            raise ValueError(f"{self.name}: need step >= 1 and min <= max, got {self.min}..{self.max} step {self.step}")
+        if not (self.min <= self.default <= self.max) or (self.default - self.min) % self.step:
+            raise ValueError(f"{self.name}: default {self.default} is not among {self.min}..{self.max} step {self.step}")
 
 
 @dataclass(frozen=True)
@@ -328,6 +388,7 @@ class ModelSpec:
     description: str = ""
     state: tuple[StateSpec, ...] = ()
     accumulate: tuple[AccumulateSpec, ...] = ()
+    setting: tuple[SettingSpec, ...] = ()
     params: Mapping = field(default_factory=FrozenDict)
     paper: Mapping = field(default_factory=FrozenDict)
     train: TrainSpec = field(default_factory=TrainSpec)
@@ -349,6 +410,12 @@ class ModelSpec:
         names = [s.name for s in self.state]
         if len(set(names)) != len(names):
             raise ValueError(f"state: duplicate names in {names}")
+        taken = set(self.inputs.layers) | {SAMPLES_INPUT, HISTORY} | {state_input_name(s.name) for s in self.state}
+        for st in self.setting:
+            if st.name in taken:
+                raise ValueError(f"setting: name {st.name!r} is already an input name")
+        if len({st.name for st in self.setting}) != len(self.setting):
+            raise ValueError(f"setting: duplicate names in {[st.name for st in self.setting]}")
         acc = [a.layer for a in self.accumulate]
         if len(set(acc)) != len(acc):
             raise ValueError(f"accumulate: duplicate layers in {acc}")
@@ -372,9 +439,11 @@ class ModelSpec:
     # -- the model interface this spec implies (see training/models/__init__.py) --------------
     @property
     def input_names(self) -> tuple[str, ...]:
-        """Graph inputs: pixel layers, then ``prev_<state>``, then ``history`` if any state."""
-        names = list(self.inputs.layers) + [state_input_name(s.name) for s in self.state]
-        return tuple(names + ([HISTORY] if self.state else []))
+        """Graph inputs: pixel layers, then ``samples`` for a per-sample model, then
+        ``prev_<state>``, then ``history`` if any state, then the settings."""
+        names = list(self.inputs.layers) + ([SAMPLES_INPUT] if self.inputs.samples else [])
+        names += [state_input_name(s.name) for s in self.state]
+        return tuple(names + ([HISTORY] if self.state else []) + [st.name for st in self.setting])
 
     @property
     def protocol(self):
@@ -398,17 +467,21 @@ class ModelSpec:
         """JSON-able content (without ``raw`` and ``path``); what :func:`spec_hash` hashes."""
         return {
             "name": self.name, "type": self.type, "description": self.description,
-            "inputs": {"layers": list(self.inputs.layers), "transfer": self.inputs.transfer},
+            "inputs": {"layers": list(self.inputs.layers), "transfer": self.inputs.transfer,
+                       **({"samples": [{"group": g, "transfer": t} for g, t in self.inputs.sample_groups]}
+                          if self.inputs.samples else {})},
             "stages": list(self.stages),
             "state": [{"name": s.name, "channels": s.channels} for s in self.state],
             "accumulate": [{"layer": a.layer, "alpha": a.alpha} for a in self.accumulate],
+            **({"setting": [{f.name: getattr(st, f.name) for f in fields(st)} for st in self.setting]}
+               if self.setting else {}),
             "params": _plain(self.params), "paper": _plain(self.paper),
             "train": _plain({f.name: getattr(self.train, f.name) for f in fields(self.train)}),
         }
 
 
-_TOP_KEYS = ("name", "type", "description", "inputs", "stages", "state", "accumulate", "params", "paper",
-             "train")
+_TOP_KEYS = ("name", "type", "description", "inputs", "stages", "state", "accumulate", "setting", "params",
+             "paper", "train")
 
 
 def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
@@ -431,6 +504,9 @@ def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
     if not isinstance(accumulate, list):
         raise SpecError(f"{where}: accumulate: expected an array of tables ([[accumulate]]), "
                         f"got {type(accumulate).__name__}")
+    setting = data.get("setting", [])
+    if not isinstance(setting, list):
+        raise SpecError(f"{where}: setting: expected an array of tables ([[setting]]), got {type(setting).__name__}")
     params = data.get("params", {})
     if not isinstance(params, Mapping):
         raise SpecError(f"{where}: params: expected a table ([params])")
@@ -446,6 +522,7 @@ def parse_spec(text: str, source: str | os.PathLike = "<spec>") -> ModelSpec:
         state=tuple(parse_table(StateSpec, s, f"{where}: [[state]] #{i}") for i, s in enumerate(state)),
         accumulate=tuple(parse_table(AccumulateSpec, a, f"{where}: [[accumulate]] #{i}")
                          for i, a in enumerate(accumulate)),
+        setting=tuple(parse_table(SettingSpec, st, f"{where}: [[setting]] #{i}") for i, st in enumerate(setting)),
         params=_freeze(params), paper=_freeze(paper),
         train=parse_table(TrainSpec, data.get("train", {}), f"{where}: [train]"),
         raw=text,

@@ -46,14 +46,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from mcdenoise.runtime.contract import SAMPLES_INPUT
+from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.temporal import Protocol
+from mcdenoise.training.models import anf  # noqa: F401  (registers type "anf")
 from mcdenoise.training.models import nbg  # noqa: F401  (registers type "nbg")
 from mcdenoise.training.models import wskpn  # noqa: F401  (registers type "wskpn")
 
 
-def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0) -> dict[str, np.ndarray]:
+def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0, spp: int = 4) -> dict[str, np.ndarray]:
     """Plausible random float32 inputs for ``model`` (by its ``input_names``), for tests and
-    export checks: name -> (n, C, h, w) array.
+    export checks: name -> (n, C, h, w) array; a per-sample model's ``samples`` (n, spp, F, h, w)
+    and its settings (int64 scalars at their defaults, ``model.settings``).
 
     color: smooth HDR radiance times 1-spp-like noise (heavy-tailed, with a few fireflies up
     to ~100); albedo in [0, 1] with a few 0 (miss) pixels; normal: unit vectors (0 where
@@ -82,10 +86,31 @@ def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0) -
         hist = rng.random((n, 1, h, w))
         layers[protocol.history] = np.where(hist < 0.3, 0.0, np.where(hist > 0.6, 1.0, hist))
     layers.update({inp: radiance(ch) for _, inp, _, ch in protocol.state})
+    groups = getattr(getattr(model, "embedding", None), "groups", None)
+    if groups:
+        layers[SAMPLES_INPUT] = np.concatenate([_sample_group(rng, g, (n, spp, h, w), radiance) for g, _ in groups], axis=2)
     out = {}
     for name in model.input_names:
         if name in layers:
-            out[name] = layers[name]
+            out[name] = np.ascontiguousarray(layers[name], dtype=np.float32)
+        elif name in getattr(model, "settings", {}):
+            out[name] = np.array(model.settings[name], np.int64)
         else:
             raise KeyError(f"example_inputs: no generator for input {name!r}")
-    return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in out.items()}
+    return out
+
+
+def _sample_group(rng, group: str, shape, radiance) -> np.ndarray:
+    """Random per-sample values of ``group``: (N, S, C, H, W)."""
+    n, s, h, w = shape
+    c = sample_group_channels(group)
+    if "radiance" in group:
+        return radiance(s * c).reshape(n, s, c, h, w)
+    if group == "normal":
+        v = rng.normal(size=(n, s, 3, h, w))
+        return v / np.linalg.norm(v, axis=2, keepdims=True)
+    if group == "depth":
+        return rng.uniform(0.5, 20.0, (n, s, 1, h, w))
+    if group in ("roughness", "albedo", "specular_color"):
+        return rng.uniform(0.0, 1.0, (n, s, c, h, w))
+    return (rng.random((n, s, c, h, w)) < 0.2).astype(np.float64)     # flags

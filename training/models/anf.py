@@ -1,0 +1,293 @@
+"""ANF: affinity of neural features (Işık et al., SIGGRAPH 2021), registered as type "anf".
+
+Pipeline (stages, in order; each is a submodule so exported node names carry its prefix):
+
+``embedding`` (§3.1-3.2, Eq. 1)
+    each sample's features r (the spec's ``[inputs].samples`` groups, each through its
+    transfer: log(1+x) on the diffuse and specular radiance; depth divided by the frame's
+    largest sample depth) -> a per-sample MLP (``embed_layers`` 1×1 convolutions of
+    ``embed_width`` channels, leaky ReLU) on the samples reshaped into the batch, averaged over
+    the S samples: e (N, E, H, W).  The only stage whose cost grows with S.
+``unet`` (§3.3, Eq. 2)
+    a U-Net on [e, prev_embed, history] (prev_embed: the driver's reprojection of last frame's
+    accumulated embedding ē, zeros without history) with 2×2 max-pooling, bilinear upsampling
+    and concatenated skips -> per pixel K sets of affinity features f_k (d channels), bandwidths
+    a_k = x² and centre weights c_k = sigmoid(x), the temporal bandwidth b = x² and the
+    accumulation weight λ = sigmoid(x)·history.
+``kernels`` (§3.3-3.5, Eq. 3-8)
+    ē = (1−λ)e + λ·prev_embed and L̄ = (1−λ)L + λ·prev_radiance (L: the pixel's linear
+    radiance, ``color``); K dilated spatial filters (dilation 2^(k−1)) with weights c_k at the
+    centre and exp(−a_k‖f_k(p) − f_k(q)‖²) elsewhere (Eq. 4), applied in sequence (Eq. 6); the
+    last one normalised jointly with the temporal kernel exp(−b‖f_K(p) − W f_K,t−1(q)‖²) on
+    the reprojected previous output (Eq. 7-8).  Taps outside the frame, and previous-frame
+    taps without history, weigh 0.
+
+State (the driver reprojects each): ``embed`` ē, ``radiance`` L̄, ``features`` f_K and
+``output`` O, so the learned λ (not a fixed α) decides how much history each pixel keeps.
+
+The kernel size is the run-time setting ``kernel_size`` (§3.4, Fig. 7; an int64 scalar input,
+the same for the spatial and the temporal kernels): the taps are a TorchScript loop, which the
+exporter writes as an ONNX ``Loop``, so one file runs at every size without re-export.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT
+from mcdenoise.runtime.inputs import sample_group_channels
+from mcdenoise.runtime.transfer import get as get_transfer
+from mcdenoise.training.models.common import bind_inputs
+from mcdenoise.training.models.wskpn import pad_to_multiple
+from mcdenoise.training.specs import ModelSpec, SpecError, register
+
+#: Slope of the leaky ReLUs (the paper does not give it: torch's default).
+LEAK = 0.01
+#: Eq. 6, 8: the normalisation's epsilon.
+EPSILON = 1e-10
+#: Stages, in order.
+STAGES = ("embedding", "unet", "kernels")
+#: The run-time kernel-size setting's name.
+KERNEL_SIZE = "kernel_size"
+
+
+@dataclass(frozen=True)
+class ANFParams:
+    """``[params]`` of an ANF spec.
+
+    embed_width, embed_layers: the per-sample MLP (paper: 32, 3).
+    widths: the U-Net's encoder levels, then its bottleneck (paper: 64, 64, 64, 80, 96); the
+      decoder mirrors the encoder.
+    head: channels of the last level's first convolution (paper: 32).
+    kernels: K, the number of dilated spatial kernels (paper: 3).
+    features: d, the affinity features per kernel (paper: 8).
+    """
+
+    embed_width: int = 32
+    embed_layers: int = 3
+    widths: tuple[int, ...] = (64, 64, 64, 80, 96)
+    head: int = 32
+    kernels: int = 3
+    features: int = 8
+
+    def __post_init__(self):
+        if self.embed_width < 1 or self.embed_layers < 1 or self.head < 1:
+            raise ValueError("embed_width, embed_layers and head must be >= 1")
+        if len(self.widths) < 2 or min(self.widths) < 1:
+            raise ValueError(f"widths: at least one encoder level and a bottleneck, got {list(self.widths)}")
+        if self.kernels < 1 or self.features < 1:
+            raise ValueError(f"kernels and features must be >= 1, got {self.kernels}, {self.features}")
+
+    @property
+    def outputs(self) -> int:
+        """U-Net output channels: K·(d + 2) + 2 (f_k, a_k, c_k per kernel; b, λ)."""
+        return self.kernels * (self.features + 2) + 2
+
+
+def state_channels(p: ANFParams) -> dict[str, int]:
+    """The temporal state of an ANF model: name -> channels."""
+    return {"embed": p.embed_width, "radiance": 3, "features": p.features, "output": 3}
+
+
+@torch.jit.script
+def affinity_sums(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Tensor,
+                  mask: torch.Tensor, size: torch.Tensor, dilation: int, skip_centre: bool):
+    """Σ_q w(p, q)·x(q) and Σ_q w(p, q) over the size×size taps q = p + dilation·(i, j) of
+    every pixel p, w(p, q) = exp(−a(p)‖f(p) − g(q)‖²)·mask(q), taps outside the frame 0.
+
+    x (N, C, H, W); f, g (N, d, H, W) affinity features (g: of the frame the taps read);
+    a (N, 1, H, W) >= 0 bandwidths; mask (N, 1, H, W) in [0, 1]; size: an odd int64 scalar
+    tensor; ``skip_centre`` leaves the centre tap out (the spatial kernels weigh it c).
+    Returns (numerator (N, C, H, W), denominator (N, 1, H, W)), summed in tap order."""
+    k = int(size)
+    r = k // 2
+    h, w = x.shape[2], x.shape[3]
+    pad = r * dilation
+    xp = F.pad(x, [pad, pad, pad, pad])
+    gp = F.pad(g, [pad, pad, pad, pad])
+    mp = F.pad(mask, [pad, pad, pad, pad])
+    num = torch.zeros_like(x)
+    den = torch.zeros_like(a)
+    for i in range(k * k):
+        dy = (i // k - r) * dilation
+        dx = (i % k - r) * dilation
+        if not (skip_centre and dy == 0 and dx == 0):
+            d = f - gp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
+            wgt = torch.exp(-a * (d * d).sum(1, keepdim=True)) * mp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
+            num = num + wgt * xp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
+            den = den + wgt
+    return num, den
+
+
+def spatial_filter(x, f, a, c, size, dilation: int):
+    """One spatial kernel of Eq. 4 applied as Eq. 6: (N, 3, H, W) -> (N, 3, H, W); also
+    returns its (numerator, denominator) for Eq. 8's joint normalisation."""
+    ones = torch.ones_like(a)
+    num, den = affinity_sums(x, f, f, a, ones, size, dilation, True)
+    return num + c * x, den + c
+
+
+class Embedding(nn.Module):
+    """Stage "embedding": samples (N, S, F, H, W) -> e (N, E, H, W), Eq. 1."""
+
+    def __init__(self, groups: tuple[tuple[str, str], ...], p: ANFParams):
+        super().__init__()
+        self.groups = groups
+        cin = sum(sample_group_channels(g) for g, _ in groups)
+        layers = []
+        for i in range(p.embed_layers):
+            layers += [nn.Conv2d(cin if i == 0 else p.embed_width, p.embed_width, 1), nn.LeakyReLU(LEAK)]
+        self.mlp = nn.Sequential(*layers)
+
+    def features(self, samples: torch.Tensor) -> torch.Tensor:
+        """The MLP's input: each group through its transfer, depth over the frame's max."""
+        parts, c = [], 0
+        for group, transfer in self.groups:
+            n = sample_group_channels(group)
+            x = samples[:, :, c:c + n]
+            if group == "depth":
+                x = x / x.amax(dim=(1, 2, 3, 4), keepdim=True).clamp(min=1e-12)
+            parts.append(get_transfer(transfer)(x))
+            c += n
+        return torch.cat(parts, dim=2)
+
+    def forward(self, samples: torch.Tensor) -> torch.Tensor:
+        x = self.features(samples)
+        n, s, c, h, w = x.shape
+        # reshape with the traced sizes (``unflatten`` bakes the traced H, W into the graph)
+        e = self.mlp(x.reshape(n * s, c, h, w))
+        return e.reshape(n, s, e.shape[1], h, w).mean(dim=1)
+
+
+def _conv(cin: int, cout: int, act: bool = True) -> nn.Module:
+    conv = nn.Conv2d(cin, cout, 3, padding=1)
+    return nn.Sequential(conv, nn.LeakyReLU(LEAK)) if act else conv
+
+
+class UNet(nn.Module):
+    """Stage "unet": [e, prev_embed, history] -> the per-pixel parameters (N, K(d+2)+2, H, W)."""
+
+    def __init__(self, p: ANFParams):
+        super().__init__()
+        enc, bott = p.widths[:-1], p.widths[-1]
+        self.multiple = 2 ** len(enc)
+        cin = 2 * p.embed_width + 1
+        self.down = nn.ModuleList()
+        for w in enc:
+            self.down.append(nn.Sequential(_conv(cin, w), _conv(w, w)))
+            cin = w
+        self.bottleneck = nn.Sequential(_conv(cin, bott), _conv(bott, bott))
+        self.up = nn.ModuleList()
+        cin = bott
+        outs = list(enc[1:][::-1]) + [p.head]          # decoder level widths, coarse to fine
+        for j, (skip, w) in enumerate(zip(enc[::-1], outs)):
+            last = j == len(outs) - 1                   # its second convolution is the output
+            self.up.append(nn.Sequential(_conv(cin + skip, w), _conv(w, p.outputs, act=False) if last else _conv(w, w)))
+            cin = w
+
+    def forward(self, e, prev_embed, history):
+        h, w = e.shape[2], e.shape[3]
+        x = pad_to_multiple(torch.cat([e, prev_embed, history], dim=1), self.multiple)
+        skips = []
+        for level in self.down:
+            x = level(x)
+            skips.append(x)
+            x = F.max_pool2d(x, 2)
+        x = self.bottleneck(x)
+        for level, skip in zip(self.up, skips[::-1]):
+            x = F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+            x = level(torch.cat([x, skip], dim=1))
+        return x[:, :, :h, :w]
+
+
+class Kernels(nn.Module):
+    """Stage "kernels": temporal accumulation (Eq. 3, 5), K spatial kernels (Eq. 4, 6) and the
+    temporal kernel (Eq. 7, 8).  In training mode it keeps the bandwidth regulariser of Eq. 13
+    of its last call in :attr:`regularizer`."""
+
+    def __init__(self, p: ANFParams):
+        super().__init__()
+        self.k, self.d = p.kernels, p.features
+        self.regularizer = None
+
+    def forward(self, params, e, color, prev_embed, prev_radiance, prev_features, prev_output, history, size):
+        k, d = self.k, self.d
+        lam = torch.sigmoid(params[:, -1:]) * history
+        b = params[:, -2:-1] ** 2
+        embed = e + (prev_embed - e) * lam
+        radiance = color + (prev_radiance - color) * lam
+        x = radiance
+        reg = b.pow(2).mean()
+        for i in range(k):
+            o = i * (d + 2)
+            f, a, c = params[:, o:o + d], params[:, o + d:o + d + 1] ** 2, torch.sigmoid(params[:, o + d + 1:o + d + 2])
+            reg = reg + a.pow(2).mean()
+            num, den = spatial_filter(x, f, a, c, size, 2 ** i)
+            if i < k - 1:
+                x = num / (den + EPSILON)
+            else:
+                tnum, tden = affinity_sums(prev_output, f, prev_features, b, history, size, 1, False)
+                x = (num + tnum) / (den + tden + EPSILON)
+                features = f
+        if self.training:
+            self.regularizer = reg
+        return x, embed, radiance, features, x.clone()
+
+
+class ANF(nn.Module):
+    """The ANF model (see the module docstring); inputs and outputs as its spec implies."""
+
+    def __init__(self, spec: ModelSpec, p: ANFParams):
+        super().__init__()
+        self.spec_name = spec.name
+        self.params_ = p
+        self.state_channels = state_channels(p)
+        self.input_names = spec.input_names
+        self.output_names = spec.output_names
+        #: The stage whose TorchScript tap loop exports without a module scope (the exporter
+        #: prefixes those nodes with it).
+        self.scripted_stage = "kernels"
+        #: Run-time settings and their defaults (int64 scalar inputs).
+        self.settings = {st.name: st.default for st in spec.setting}
+        self.embedding = Embedding(spec.inputs.sample_groups, p)
+        self.unet = UNet(p)
+        self.kernels = Kernels(p)
+
+    @property
+    def regularizer(self):
+        """Eq. 13 of the last forward in training mode (None before one)."""
+        return self.kernels.regularizer
+
+    def forward(self, *inputs):
+        t = bind_inputs(self, inputs)
+        e = self.embedding(t[SAMPLES_INPUT])
+        params = self.unet(e, t["prev_embed"], t[HISTORY])
+        out = self.kernels(params, e, t["color"], t["prev_embed"], t["prev_radiance"], t["prev_features"],
+                           t["prev_output"], t[HISTORY], t[KERNEL_SIZE])
+        return out
+
+    def deploy(self) -> "ANF":
+        """The inference form: this model in eval mode (nothing to fuse)."""
+        return self.eval()
+
+
+@register("anf")
+def build_anf(spec: ModelSpec) -> ANF:
+    where = spec.path or spec.name
+    p = spec.params_as(ANFParams)
+    if tuple(spec.stages) != STAGES:
+        raise SpecError(f"{where}: stages must be {list(STAGES)} for type 'anf', got {list(spec.stages)}")
+    if tuple(spec.inputs.layers) != ("color",) or not spec.inputs.samples:
+        raise SpecError(f"{where}: type 'anf' reads [inputs].layers = [\"color\"] (the radiance it filters) "
+                        "and per-sample groups ([inputs].samples)")
+    if [(s.name, s.channels) for s in spec.state] != list(state_channels(p).items()):
+        raise SpecError(f"{where}: [[state]] must be {list(state_channels(p).items())} for type 'anf'")
+    if [s.name for s in spec.setting] != [KERNEL_SIZE] or spec.setting[0].step % 2 or spec.setting[0].min % 2 == 0:
+        raise SpecError(f"{where}: type 'anf' takes one [[setting]] {KERNEL_SIZE!r} over odd sizes")
+    if spec.accumulate:
+        raise SpecError(f"{where}: type 'anf' accumulates in its graph with the learned λ; no [[accumulate]]")
+    return ANF(spec, p)
+
