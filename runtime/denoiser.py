@@ -30,7 +30,8 @@ import numpy as np
 from mcdenoise.runtime import timing, transfer
 from mcdenoise.runtime.contract import parse_contract
 from mcdenoise.runtime.frames import Frame, FrameError
-from mcdenoise.runtime.inputs import RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes, model_inputs
+from mcdenoise.runtime.inputs import (RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes,
+                                     model_inputs, sample_inputs)
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
@@ -105,13 +106,17 @@ class Denoiser:
         self._input_name = {i["layer"]: i["name"] for i in contract.inputs if i.get("layer")}
         self._input_transfer = {i["layer"]: i.get("transfer", "linear") for i in contract.inputs if i.get("layer")}
         self.graph_stages = [s["name"] for s in contract.stages]
+        #: The per-sample input's groups (None for a pixel model).
+        self._samples = contract.samples_input
+        #: Run-time settings (int64 scalar inputs): name -> value; change with :meth:`set`.
+        self.settings = {st["name"]: st["default"] for st in contract.settings}
 
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
              driver_threads: int | None = None, prelude: str = "auto",
-             accumulate_alpha: float | None = None) -> "Denoiser":
+             accumulate_alpha: float | None = None, settings: dict | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -128,6 +133,7 @@ class Denoiser:
             any other.
           accumulate_alpha: the current frame's weight for every accumulated input, in (0, 1],
             instead of the file's (1: no accumulation); a run-time knob, the graph unchanged.
+          settings: run-time settings to start with (name -> value, see :meth:`set`).
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
@@ -181,7 +187,20 @@ class Denoiser:
                 raise ValueError(f"accumulate_alpha must be in (0, 1], got {accumulate_alpha}")
             den.protocol = replace(den.protocol, accumulate=tuple(
                 (layer, inp, float(accumulate_alpha)) for layer, inp, _ in den.protocol.accumulate))
+        for name, value in (settings or {}).items():
+            den.set(name, value)
         return den
+
+    def set(self, name: str, value: int) -> None:
+        """Change a run-time setting (e.g. ANF's ``kernel_size``) from the next frame on; the
+        history is kept.  ValueError naming the allowed values otherwise."""
+        st = next((st for st in self.contract.settings if st["name"] == name), None)
+        if st is None:
+            raise ValueError(f"{self.contract.spec_name} has no setting {name!r}; it has {list(self.settings)}")
+        ok = isinstance(value, (int, np.integer)) and st["min"] <= value <= st["max"] and not (value - st["min"]) % st["step"]
+        if not ok:
+            raise ValueError(f"{name} must be one of {st['min']}, {st['min'] + st['step']}, ... {st['max']}, got {value!r}")
+        self.settings[name] = int(value)
 
     # ------------------------------------------------------------------ state
     def reset(self, reason: str | None = None) -> None:
@@ -208,6 +227,8 @@ class Denoiser:
             fr = _as_frame(frame)
             for layer in self.frame_layers:
                 fr.layer(layer)  # FrameError naming the layer if absent
+            if self._samples is not None and fr.samples is None:
+                sample_inputs(fr, ())  # the FrameError saying what per-sample data is and how to get it
             fr.validate()                     # FrameError naming what is wrong
             h, w = fr.size
             if fr.color.ndim != 3 or fr.color.shape[2] != 3:
@@ -234,11 +255,6 @@ class Denoiser:
                                   buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
                                   scale=exposed)
             feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
-            if rep.total:
-                self.report.sanitized_frames += 1
-                kinds = ",".join(sorted(set(rep.nonfinite) | set(rep.negative) | set(rep.clamped)))
-                self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
-                          "further sanitising is counted in the report", once_key="sanitize:" + kinds)
             guides = self._guide_buffers(fr, planes)
             if self._state is None:
                 # A new history: fix its exposure now, so the state stays in one unit.
@@ -250,6 +266,15 @@ class Denoiser:
                     # every layer), and a new 11 MB array costs its page faults (720p).
                     a = np.multiply(a, np.float32(self.exposure), out=a)
                 feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
+            if self._samples is not None:
+                feeds[self._samples["name"]] = sample_inputs(fr, [g["group"] for g in self._samples["groups"]], rep,
+                                                             None if self.exposure == 1.0 else self.exposure)
+            feeds.update({st["input"]: np.array(self.settings[st["name"]], np.int64) for st in self.contract.settings})
+            if rep.total:
+                self.report.sanitized_frames += 1
+                kinds = ",".join(sorted(set(rep.nonfinite) | set(rep.negative) | set(rep.clamped)))
+                self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
+                          "further sanitising is counted in the report", once_key="sanitize:" + kinds)
         with tm.stage(timing.REPROJECT):
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
         with tm.stage(timing.GRAPH):

@@ -20,7 +20,7 @@ from mcdenoise.training.specs import build_model, list_specs, load_spec, parse_s
 
 SPECS = list_specs()
 #: Model type -> the stage that runs its neural network.
-NETWORK_STAGE = {"wskpn": "prediction", "nbg": "guide"}
+NETWORK_STAGE = {"wskpn": ("prediction",), "nbg": ("guide",), "anf": ("embedding", "unet")}
 
 
 @pytest.fixture(scope="module")
@@ -85,9 +85,14 @@ def test_dynamic_axes(name, exported):
     sess = _session(path)
     assert [i.name for i in sess.get_inputs()] == list(model.input_names)
     assert [o.name for o in sess.get_outputs()] == list(model.output_names)
+    settings = getattr(model, "settings", {})
     for t in (*sess.get_inputs(), *sess.get_outputs()):
-        n, c, h, w = t.shape
+        if t.name in settings:                       # an int64 scalar
+            assert t.shape == [] and t.type == "tensor(int64)"
+            continue
+        n, *s, c, h, w = t.shape                     # (N, S, F, H, W) for a per-sample input
         assert isinstance(n, str) and isinstance(h, str) and isinstance(w, str) and isinstance(c, int)
+        assert all(isinstance(x, str) for x in s) and len(s) == (t.name == "samples")
 
 
 @pytest.mark.parametrize("name", SPECS)
@@ -125,8 +130,8 @@ def test_every_node_has_a_stage_prefix(name, exported):
     for stage in spec.stages:  # each stage has compute of its own
         assert any(n.name.startswith(f"/{stage}/") for n in graph.node), stage
     assert sum(n.op_type == "Conv" for n in graph.node) > 0
-    network = NETWORK_STAGE[spec.type]  # the network's convolutions are charged to its stage
-    assert all(n.name.startswith(f"/{network}/") for n in graph.node if n.op_type == "Conv")
+    network = NETWORK_STAGE[spec.type]  # the network's convolutions are charged to its stages
+    assert all(n.name.startswith(tuple(f"/{s}/" for s in network)) for n in graph.node if n.op_type == "Conv")
 
 
 @pytest.mark.parametrize("name", SPECS)

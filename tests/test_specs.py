@@ -63,7 +63,8 @@ def test_spec_hash_ignores_comments_and_tracks_content(name):
     spec = load_spec(name)
     same = parse_spec("# a comment\n" + spec.raw + "\n# trailing\n")
     assert spec_hash(same) == spec_hash(spec)
-    changed = parse_spec(_insert(spec.raw, "train", "batch_size = 3").replace("batch_size = 8", "", 1))
+    changed = parse_spec(_insert(re.sub(r"^batch_size\s*=.*$", "", spec.raw, count=1, flags=re.M), "train",
+                                 "batch_size = 3"))
     assert changed.train.batch_size == 3
     assert spec_hash(changed) != spec_hash(spec)
     assert re.fullmatch(r"[0-9a-f]{64}", spec_hash(spec))

@@ -12,20 +12,24 @@ Item tensors, float32, leading time axis T:
   normal (T, 3, c, c) screen space, depth (T, 1, c, c);
   reference (T, 3, c, c); motion (T, 2, c, c) pixels; position (T, 3, c, c) and
   normal_world (T, 3, c, c) world-space guides for :func:`runtime.temporal.reproject`;
-  samples (T, n, F, c, c) when ``samples=True`` (per-sample models).
+  samples (T, n, F, c, c): for a per-sample model (``sample_groups``) its ``samples`` input,
+  :func:`runtime.inputs.sample_inputs` of the crop (sanitised, normals in screen space, the
+  groups' channels only); with ``samples=True`` instead the raw stored features.
+Every item of one batch must have the same n to stack: :meth:`SequenceDataset.batch_spp`
+draws it per batch and ``dataset[index, n]`` makes an item with it.
 """
 from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 
 from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
                             read_frame, read_meta)
-from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs
+from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs, sample_channels, sample_inputs
 
 #: Channels holding screen-space (x right, y down) vector components, per item key.
 SCREEN_VECTORS = {"normal": (0, 1), "motion": (0, 1),
@@ -135,11 +139,13 @@ class SequenceDataset:
       samples: also return the per-sample array.
       seed: base seed; item i of epoch e is a pure function of (seed, e, i).
       max_sequences: keep only the first N sequences of the split (sorted by scene seed).
+      sample_groups: a per-sample model's groups (names, in order): items carry its
+        ``samples`` input.
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
-                 samples=False, seed=0, val_fraction=0.2, max_sequences=None):
+                 samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=()):
         self.seqs = split(discover(root), part, val_fraction)
         if max_sequences is not None:
             if max_sequences < 1:
@@ -157,7 +163,8 @@ class SequenceDataset:
         self.starts = [(i, t) for i, s in enumerate(self.seqs) for t in range(len(s.frames) - self.window + 1)]
         self.length = int(length) if length else len(self.starts)
         self.augment = augment
-        self.samples = samples
+        self.sample_groups = tuple(sample_groups)
+        self.samples = samples or bool(self.sample_groups)
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -179,7 +186,16 @@ class SequenceDataset:
             self._cache[path] = fr
         return fr
 
-    def __getitem__(self, index: int) -> dict:
+    def batch_spp(self, pos: int) -> int:
+        """Samples per pixel of every item of step ``pos`` of the current epoch (per-sample
+        models stack S): drawn from ``spp_choices`` (those the data holds), a pure function of
+        (seed, epoch, pos)."""
+        stored = min(s.spp for s in self.seqs)
+        choices = [n for n in self.spp_choices if n <= stored] or [stored]
+        return int(np.random.default_rng([self.seed, self.epoch, int(pos), 1]).choice(choices))
+
+    def __getitem__(self, index) -> dict:
+        index, spp = index if isinstance(index, tuple) else (index, None)
         rng = np.random.default_rng([self.seed, self.epoch, int(index)])
         if self.augment:
             seq_i, t0 = self.starts[rng.integers(len(self.starts))]
@@ -193,9 +209,10 @@ class SequenceDataset:
             choices = [n for n in self.spp_choices if n <= first.spp] or [first.spp]
             n = int(rng.choice(choices))
             k = int(rng.integers(8))
+            n = n if spp is None else min(spp, first.spp)
         else:
             y0, x0 = (h - c) // 2, (w - c) // 2
-            n = min(max(self.spp_choices), first.spp)
+            n = min(max(self.spp_choices) if spp is None else spp, first.spp)
             k = 0
         return self.make_item(seq_i, t0, y0, x0, c, n, k, rng if self.augment else None)
 
@@ -225,10 +242,14 @@ class SequenceDataset:
                 names += ("valid",)
             arrays = frame_inputs(crop, tuple(dict.fromkeys(names)), report)
             arrays["normal_world"] = np.ascontiguousarray(px["normal"].transpose(2, 0, 1)[None])
-            if self.samples:
+            if self.sample_groups:
+                arrays["samples"] = sample_inputs(replace(crop, samples=sub), self.sample_groups, report)
+            elif self.samples:
                 arrays["samples"] = np.ascontiguousarray(sub.transpose(0, 3, 1, 2))[None]
             for key, arr in arrays.items():
-                out.setdefault(key, []).append(dihedral(arr[0], k, SCREEN_VECTORS.get(key)))
+                vec = tuple(sample_channels(self.sample_groups, "screen_xy")) or None \
+                    if key == "samples" and self.sample_groups else SCREEN_VECTORS.get(key)
+                out.setdefault(key, []).append(dihedral(arr[0], k, vec))
         item = {key: np.stack(v) for key, v in out.items()}
         item["spp"] = np.int64(n)
         return item

@@ -336,7 +336,8 @@ class TrainSpec:
     batch_size: windows per step; crop: square crop side in pixels; spp: input sample counts
     drawn per item; window: consecutive frames per temporal item; steps: optimiser steps;
     minutes: wall-clock budget; temporal_weight: weight of the temporal term, the loss of the
-    frame differences of output against reference (ANF §4 uses 0.25 with SMAPE).
+    frame differences of output against reference (ANF §4 uses 0.25 with SMAPE);
+    regularizer_weight: weight of the model's own regulariser, if it has one (ANF Eq. 9: 1e-5).
     """
 
     loss: str = "smape"
@@ -348,8 +349,11 @@ class TrainSpec:
     steps: int = 2000
     minutes: float = 20.0
     temporal_weight: float = 0.0
+    regularizer_weight: float = 0.0
 
     def __post_init__(self):
+        if not self.regularizer_weight >= 0:
+            raise ValueError(f"regularizer_weight: must be >= 0, got {self.regularizer_weight}")
         if not self.loss:
             raise ValueError("loss: must be a non-empty name")
         if not self.lr > 0:
@@ -476,7 +480,9 @@ class ModelSpec:
             **({"setting": [{f.name: getattr(st, f.name) for f in fields(st)} for st in self.setting]}
                if self.setting else {}),
             "params": _plain(self.params), "paper": _plain(self.paper),
-            "train": _plain({f.name: getattr(self.train, f.name) for f in fields(self.train)}),
+            # regularizer_weight came later: left out at its default, so older specs keep their hash
+            "train": _plain({f.name: getattr(self.train, f.name) for f in fields(self.train)
+                             if not (f.name == "regularizer_weight" and not self.train.regularizer_weight)}),
         }
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
 from mcdenoise.runtime.contract import OUTPUT
-from mcdenoise.runtime.inputs import exposure_scale
+from mcdenoise.runtime.inputs import exposure_scale, sample_channels
 from mcdenoise.training.metrics import psnr, relmse, smape
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.transfer import gamma
@@ -68,6 +68,10 @@ def window_loss(loss_fn, outs: list, refs, temporal_weight: float = 0.0):
     return loss
 
 
+#: Key of an output dict of :func:`run_window` holding the model's regulariser of that frame.
+REGULARIZER = "regularizer"
+
+
 def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True, forward=None):
     """Run the model over a batch of windows (B, T, C, H, W); returns a list of output dicts.
 
@@ -79,8 +83,20 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
     (:func:`runtime.inputs.exposure_scale` of its first frame, fixed for the window) and the
     ``output`` scaled back, so outputs are in the data's units and the state in the
     window's exposed units. ``forward``: what runs the model (default ``model``; the trainer
-    passes its DistributedDataParallel wrapper)."""
+    passes its DistributedDataParallel wrapper).
+
+    A per-sample model's ``samples`` (B, T, S, F, H, W) get the same exposure on their radiance
+    channels; its settings are fed at their defaults; a model with a ``regularizer`` (ANF's
+    Eq. 13) leaves each frame's in the output dict under :data:`REGULARIZER`."""
+    import torch
+
     t_len = batch["color"].shape[1]
+    groups = [g for g, _ in getattr(model, "sample_groups", ())]
+    gain = None
+    if groups and autoexposure:
+        radiance = torch.zeros(batch["samples"].shape[3], dtype=batch["color"].dtype, device=batch["color"].device)
+        radiance[sample_channels(groups, "radiance")] = 1
+        gain = radiance.reshape(1, 1, -1, 1, 1)
     outputs = []
     kept, prev_guides = None, None
     exposure = exposure_scale(batch["color"][:, 0]) if autoexposure else None
@@ -88,6 +104,10 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
         feeds = {k: v[:, t] for k, v in batch.items() if k != "spp"}   # pixel inputs carry their layer's name
         if exposure is not None:
             feeds["color"] = feeds["color"] * exposure
+            if gain is not None:
+                feeds["samples"] = feeds["samples"] * (1 + (exposure[:, None] - 1) * gain)
+        for name, value in getattr(model, "settings", {}).items():
+            feeds[name] = torch.tensor(value)
         guides = {"depth": feeds["depth"], "position": feeds["position"], "normal": feeds["normal_world"]}
         if kept is None:
             acc = protocol.start(feeds, feeds["color"])
@@ -98,6 +118,8 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
             raise KeyError(f"model input(s) {missing} not in the batch ({sorted(feeds)})")
         out = dict(zip(model.output_names, (forward or model)(*[feeds[n] for n in model.input_names])))
         kept = protocol.update(acc, out)
+        if getattr(model, "regularizer", None) is not None and model.training:
+            out[REGULARIZER] = model.regularizer
         if exposure is not None:
             out[OUTPUT] = out[OUTPUT] / exposure
         outputs.append(out)
@@ -227,6 +249,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "batch_size": batch_size or tr.batch_size, "crop": crop or tr.crop,
             "lr": tr.lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
             "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
+            "regularizer_weight": tr.regularizer_weight,
             "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "test_data": os.path.abspath(test_data) if test_data else None,
@@ -249,16 +272,17 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
     layers = tuple(spec.inputs.layers)
+    groups = tuple(g for g, _ in spec.inputs.sample_groups)
     train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
                                 spp_choices=config["spp"], window=config["window"],
                                 seed=config["seed"], val_fraction=config["val_fraction"],
-                                max_sequences=config.get("max_sequences"))
+                                max_sequences=config.get("max_sequences"), sample_groups=groups)
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
-                              val_fraction=config["val_fraction"])
+                              val_fraction=config["val_fraction"], sample_groups=groups)
     test_set = None if not config.get("test_data") else SequenceDataset(
         config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
-        window=config["window"], augment=False)
+        window=config["window"], augment=False, sample_groups=groups)
     val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"], "device": device}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
@@ -298,10 +322,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(
             config["seed"] * 100003 + epoch)).tolist()
         while pos < steps_per_epoch and step < config["steps"]:
-            batch = collate([train_set[i] for i in batch_share(order, pos, bs, rank, world)])
+            # A per-sample model's batch shares one S (it stacks samples); pixel models draw per item.
+            spp_now = train_set.batch_spp(pos) if groups else None
+            batch = collate([train_set[i, spp_now] for i in batch_share(order, pos, bs, rank, world)])
             batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
             outs = run_window(model, batch, protocol, forward=forward)
             loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
+            if config.get("regularizer_weight") and REGULARIZER in outs[0]:
+                loss = loss + config["regularizer_weight"] * sum(o[REGULARIZER] for o in outs) / len(outs)
             # The global batch's loss (the mean of the processes' equal shares) and whether the
             # first process's clock says stop: every process takes the same decisions.
             elapsed = time.perf_counter() - t_start

@@ -252,6 +252,8 @@ class ANF(nn.Module):
         self.scripted_stage = "kernels"
         #: Run-time settings and their defaults (int64 scalar inputs).
         self.settings = {st.name: st.default for st in spec.setting}
+        #: (group, transfer) of the ``samples`` input's channels, in order.
+        self.sample_groups = spec.inputs.sample_groups
         self.embedding = Embedding(spec.inputs.sample_groups, p)
         self.unet = UNet(p)
         self.kernels = Kernels(p)
@@ -270,8 +272,10 @@ class ANF(nn.Module):
         return out
 
     def deploy(self) -> "ANF":
-        """The inference form: this model in eval mode (nothing to fuse)."""
-        return self.eval()
+        """The inference form: a copy in eval mode (nothing to fuse)."""
+        import copy
+
+        return copy.deepcopy(self).eval()
 
 
 @register("anf")

@@ -1,0 +1,197 @@
+"""ANF and the per-sample input path: the kernels against a brute-force sum, the run-time kernel
+size and the sample count through the ONNX file against torch, the embedding's invariances,
+the driver against the training unroll, settings, and the one-line error on plain input.
+
+Uses a randomly initialised (seeded) anf-s: behaviour, not quality, is under test here."""
+import numpy as np
+import pytest
+import torch
+
+from mcdenoise.export.onnx_export import export_model, parity_errors, parity_ok
+from mcdenoise.runtime.contract import SAMPLES_INPUT
+from mcdenoise.runtime.denoiser import Denoiser
+from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError
+from mcdenoise.runtime.inputs import sample_channels, sample_inputs
+from mcdenoise.training.harness import synthetic_frame
+from mcdenoise.training.models import example_inputs
+from mcdenoise.training.models.anf import affinity_sums
+from mcdenoise.training.specs import build_model, load_spec
+
+SPEC = "anf-s"
+
+
+@pytest.fixture(scope="module")
+def anf(tmp_path_factory):
+    torch.manual_seed(0)
+    spec = load_spec(SPEC)
+    model = build_model(spec).eval()
+    path = tmp_path_factory.mktemp("anf") / f"{SPEC}.onnx"
+    export_model(spec, model, path)
+    return path, spec, model
+
+
+def _brute(x, f, g, a, mask, k, dilation, skip_centre):
+    n, c, h, w = x.shape
+    num, den = np.zeros_like(x), np.zeros_like(a)
+    r = k // 2
+    for y in range(h):
+        for xx in range(w):
+            for i in range(-r, r + 1):
+                for j in range(-r, r + 1):
+                    v, u = y + i * dilation, xx + j * dilation
+                    if not (0 <= v < h and 0 <= u < w) or (skip_centre and i == 0 and j == 0):
+                        continue
+                    wt = np.exp(-a[:, 0, y, xx] * ((f[:, :, y, xx] - g[:, :, v, u]) ** 2).sum(1)) * mask[:, 0, v, u]
+                    num[:, :, y, xx] += wt[:, None] * x[:, :, v, u]
+                    den[:, 0, y, xx] += wt
+    return num, den
+
+
+@pytest.mark.parametrize("k,dilation,skip", [(3, 1, True), (5, 2, False), (3, 4, True)])
+def test_affinity_sums_equal_the_brute_force_sum(k, dilation, skip):
+    rng = np.random.default_rng(k + dilation)
+    x, f, g = rng.random((2, 3, 9, 11)), rng.normal(size=(2, 4, 9, 11)), rng.normal(size=(2, 4, 9, 11))
+    a, mask = rng.random((2, 1, 9, 11)), (rng.random((2, 1, 9, 11)) > 0.3).astype(np.float64)
+    got = affinity_sums(*[torch.from_numpy(v) for v in (x, f, g, a, mask)], torch.tensor(k), dilation, skip)
+    for gv, want in zip(got, _brute(x, f, g, a, mask, k, dilation, skip)):
+        np.testing.assert_allclose(gv.numpy(), want, rtol=1e-12, atol=1e-12)
+
+
+def test_zero_bandwidth_and_full_centre_weight_is_a_box_filter():
+    from mcdenoise.training.models.anf import spatial_filter
+
+    x = torch.rand(1, 3, 8, 10, dtype=torch.float64)
+    f = torch.randn(1, 4, 8, 10, dtype=torch.float64)
+    zero, one = torch.zeros(1, 1, 8, 10, dtype=torch.float64), torch.ones(1, 1, 8, 10, dtype=torch.float64)
+    num, den = spatial_filter(x, f, zero, one, torch.tensor(3), 1)
+    box = torch.nn.functional.avg_pool2d(x, 3, 1, 1, count_include_pad=False)
+    torch.testing.assert_close(num / den, box)
+    # the centre weight alone decides the centre's share: c = 0 drops the pixel itself
+    num0, den0 = spatial_filter(x, f, zero, zero, torch.tensor(3), 1)
+    assert torch.allclose(den0, den - 1)
+
+
+@pytest.mark.parametrize("k", [3, 7, 13, 19])
+def test_kernel_size_is_a_run_time_input_equal_to_torch_at_each_size(anf, k):
+    path, _, model = anf
+    den = Denoiser.load(path)
+    feeds = example_inputs(model, 1, 30, 41, seed=3, spp=2)
+    feeds["kernel_size"] = np.array(k, np.int64)
+    errors = parity_errors(model, lambda f: den.session.run(list(model.output_names), f), feeds)
+    assert parity_ok(errors), errors
+
+
+def test_kernel_size_changes_the_output_and_is_validated(anf):
+    path, _, model = anf
+    feeds = example_inputs(model, 1, 24, 24, seed=4)
+    sess = Denoiser.load(path).session
+    outs = {k: sess.run(["output"], {**feeds, "kernel_size": np.array(k, np.int64)})[0] for k in (3, 13)}
+    assert np.abs(outs[3] - outs[13]).mean() > 1e-3 * np.abs(outs[13]).mean()
+    den = Denoiser.load(path, settings={"kernel_size": 7})
+    assert den.settings == {"kernel_size": 7}
+    for bad in (4, 1, 21, "7"):
+        with pytest.raises(ValueError, match="kernel_size must be one of 3, 5, ... 19"):
+            den.set("kernel_size", bad)
+    with pytest.raises(ValueError, match="has no setting 'radius'"):
+        den.set("radius", 3)
+    assert den.contract.settings[0] == {"name": "kernel_size", "input": "kernel_size", "default": 13, "min": 3,
+                                        "max": 19, "step": 2}
+
+
+@pytest.mark.parametrize("spp", [1, 7])
+def test_the_sample_axis_is_dynamic(anf, spp):
+    path, _, model = anf
+    feeds = example_inputs(model, 2, 20, 26, seed=spp, spp=spp)
+    assert feeds[SAMPLES_INPUT].shape == (2, spp, 18, 20, 26)
+    sess = Denoiser.load(path).session
+    errors = parity_errors(model, lambda f: sess.run(list(model.output_names), f), feeds)
+    assert parity_ok(errors), errors
+
+
+def test_embedding_is_a_mean_over_samples(anf):
+    """Eq. 1: the order of the samples does not matter, and repeating every sample does not
+    change the per-pixel embedding (the depth feature is normalised over all samples)."""
+    _, _, model = anf
+    s = torch.from_numpy(example_inputs(model, 1, 16, 16, spp=3)[SAMPLES_INPUT])
+    with torch.no_grad():
+        e = model.embedding(s)
+        torch.testing.assert_close(model.embedding(s[:, [2, 0, 1]]), e)
+        torch.testing.assert_close(model.embedding(torch.cat([s, s], dim=1)), e)
+    assert e.shape == (1, 32, 16, 16)
+
+
+def _with_samples(fr: dict, spp: int, seed: int) -> Frame:
+    """A synthetic frame with ``spp`` per-sample features whose means are its pixel layers."""
+    rng = np.random.default_rng(seed)
+    h, w, _ = fr["color"].shape
+    samples = np.zeros((spp, h, w, len(SAMPLE_FEATURES)), np.float32)
+    g = SAMPLE_GROUPS
+    noise = rng.exponential(1.0, (spp, h, w, 3)).astype(np.float32)
+    samples[..., g["radiance"]] = fr["albedo"] * noise
+    samples[..., g["albedo"]] = fr["albedo"]
+    samples[..., g["normal"]] = fr["normal"]
+    samples[..., g["depth"]] = fr["depth"]
+    samples[..., g["position"]] = fr["position"]
+    samples[..., g["roughness"]] = 1.0
+    samples[..., g["specular"]] = (rng.random((spp, h, w, 1)) < 0.1)
+    out = dict(fr, color=samples[..., g["radiance"]].mean(0), samples=samples,
+               meta={"camera": {"to_world": np.eye(4).tolist()}})
+    return Frame(**out)
+
+
+def test_driver_matches_the_training_unroll(anf):
+    """Three frames with per-sample data through the driver and through train.run_window: the
+    same samples input (sanitised, screen normals, exposed radiance), state and outputs."""
+    from mcdenoise.training.train import run_window
+
+    path, spec, model = anf
+    frames = [_with_samples(synthetic_frame(20, 16, t), 3, t) for t in range(3)]
+    den = Denoiser.load(path, log=lambda m: None)
+    outs = [den(f) for f in frames]
+    groups = [g for g, _ in spec.inputs.sample_groups]
+    batch = {}
+    from mcdenoise.runtime.inputs import frame_inputs
+
+    for f in frames:
+        arrays = frame_inputs(f, ["color", "motion", "position", "normal", "depth"])
+        arrays["normal_world"] = f.normal.transpose(2, 0, 1)[None].copy()
+        arrays["samples"] = sample_inputs(f, groups)
+        for k, v in arrays.items():
+            batch.setdefault(k, []).append(torch.from_numpy(v))
+    batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}
+    with torch.no_grad():
+        ref = run_window(model, batch, spec.protocol)
+    for t in range(3):
+        np.testing.assert_allclose(outs[t], ref[t]["output"][0].numpy().transpose(1, 2, 0), rtol=2e-4, atol=2e-5)
+    # the history is used: the third frame differs from the same frame without one
+    fresh = Denoiser.load(path, log=lambda m: None)(frames[2])
+    assert np.abs(fresh - outs[2]).mean() > 1e-4
+
+
+def test_sample_inputs_sanitise_expose_and_rotate_normals():
+    fr = _with_samples(synthetic_frame(8, 6, 0), 2, 0)
+    fr.samples[0, 1, 2, SAMPLE_GROUPS["radiance"].start] = np.nan
+    fr.samples[1, 3, 4, SAMPLE_GROUPS["radiance"].start + 1] = -5.0
+    fr.samples[0, 0, 0, SAMPLE_GROUPS["depth"].start] = np.inf
+    groups = ["diffuse_radiance", "normal", "depth"]
+    from mcdenoise.runtime.inputs import SanitizeReport
+
+    rep = SanitizeReport()
+    x = sample_inputs(fr, groups, rep, scale=2.0)
+    assert x.shape == (1, 2, 7, 6, 8) and np.isfinite(x).all() and (x[:, :, :3] >= 0).all()
+    assert rep.nonfinite and rep.negative
+    assert sample_channels(groups, "radiance") == [0, 1, 2] and sample_channels(groups, "screen_xy") == [3, 4]
+    clean = sample_inputs(_with_samples(synthetic_frame(8, 6, 0), 2, 0), groups, None, scale=2.0)
+    diffuse = fr.sample_feature("diffuse_radiance")[1, 2, 2]
+    np.testing.assert_allclose(clean[0, 1, :3, 2, 2], 2.0 * diffuse, rtol=1e-6)
+    # the identity camera's screen frame flips x and y of the world normal (-z here stays -z)
+    np.testing.assert_allclose(clean[0, 0, 3:6, 0, 0], [0.0, 0.0, -1.0], atol=1e-6)
+
+
+def test_a_per_sample_model_on_plain_input_says_what_it_needs(anf):
+    path, _, _ = anf
+    den = Denoiser.load(path, log=lambda m: None)
+    fr = Frame(**synthetic_frame(16, 12, 0))
+    with pytest.raises(FrameError, match=r"reads per-sample data \(sample<i>\.\* layers\) and the frame has none"):
+        den(fr)
+    assert den.report.frames == 0
