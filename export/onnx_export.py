@@ -267,6 +267,12 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
             for n in proto.graph.node:
                 if not n.name.startswith(tuple(node_prefix(st) for st in spec.stages)):
                     n.name = node_prefix(scripted) + (n.name or n.op_type)
+        # Shape inference loses the channel count through a Loop (ANF's taps): the spec knows it.
+        channels = {model.output_names[0]: 3, **{state_output_name(st.name): st.channels for st in spec.state}}
+        for o in proto.graph.output:
+            dim = o.type.tensor_type.shape.dim
+            if len(dim) == 4 and not dim[1].HasField("dim_value"):
+                dim[1].dim_value = channels[o.name]
         bad = unstaged_nodes(proto.graph, spec.stages)
         if bad:
             raise ExportError(f"{spec.name}: {len(bad)} graph node(s) outside every stage "

@@ -14,7 +14,7 @@ from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, Fram
 from mcdenoise.runtime.inputs import sample_channels, sample_inputs
 from mcdenoise.training.harness import synthetic_frame
 from mcdenoise.training.models import example_inputs
-from mcdenoise.training.models.anf import affinity_sums
+from mcdenoise.training.models.anf import AFFINITY_BOUND, affinity_sums
 from mcdenoise.training.specs import build_model, load_spec
 
 SPEC = "anf-s"
@@ -41,7 +41,8 @@ def _brute(x, f, g, a, mask, k, dilation, skip_centre):
                     v, u = y + i * dilation, xx + j * dilation
                     if not (0 <= v < h and 0 <= u < w) or (skip_centre and i == 0 and j == 0):
                         continue
-                    wt = np.exp(-a[:, 0, y, xx] * ((f[:, :, y, xx] - g[:, :, v, u]) ** 2).sum(1)) * mask[:, 0, v, u]
+                    e = a[:, 0, y, xx] * ((f[:, :, y, xx] - g[:, :, v, u]) ** 2).sum(1)
+                    wt = np.exp(-np.minimum(e, AFFINITY_BOUND)) * mask[:, 0, v, u]
                     num[:, :, y, xx] += wt[:, None] * x[:, :, v, u]
                     den[:, 0, y, xx] += wt
     return num, den
@@ -51,8 +52,9 @@ def _brute(x, f, g, a, mask, k, dilation, skip_centre):
 def test_affinity_sums_equal_the_brute_force_sum(k, dilation, skip):
     rng = np.random.default_rng(k + dilation)
     x, f, g = rng.random((2, 3, 9, 11)), rng.normal(size=(2, 4, 9, 11)), rng.normal(size=(2, 4, 9, 11))
+    f[0, :, :3] *= 10.0                            # some exponents beyond the bound
     a, mask = rng.random((2, 1, 9, 11)), (rng.random((2, 1, 9, 11)) > 0.3).astype(np.float64)
-    got = affinity_sums(*[torch.from_numpy(v) for v in (x, f, g, a, mask)], torch.tensor(k), dilation, skip)
+    got = affinity_sums(*[torch.from_numpy(v) for v in (x, f, g, a, mask)], torch.tensor(k), dilation, skip, AFFINITY_BOUND)
     for gv, want in zip(got, _brute(x, f, g, a, mask, k, dilation, skip)):
         np.testing.assert_allclose(gv.numpy(), want, rtol=1e-12, atol=1e-12)
 

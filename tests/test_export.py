@@ -115,11 +115,13 @@ def test_reference_evaluator_matches_on_tiny_input(name, exported):
     _, model, path, _ = exported[name]
     feeds = example_inputs(model, 1, 8, 12, seed=6)
     evaluator = ReferenceEvaluator(str(path))
-    _assert_parity(parity_errors(model, lambda f: evaluator.run(list(model.output_names), f), feeds))
+    errors = parity_errors(model, lambda f: evaluator.run(list(model.output_names), f), feeds)
+    _assert_parity(errors)
     ortv = _session(path).run(list(model.output_names), feeds)
     for n, g, o in zip(model.output_names, evaluator.run(list(model.output_names), feeds), ortv):
         assert g.shape == o.shape == (1, o.shape[1], 8, 12)
-        assert parity_error(g, o) <= PARITY_TOL, n
+        # two float32 evaluations, each within its margin of float64 (see _assert_parity)
+        assert parity_error(g, o) <= max(PARITY_TOL, 2 * FLOAT32_MARGIN * errors[n][1]), n
 
 
 @pytest.mark.parametrize("name", SPECS)
@@ -145,10 +147,16 @@ def test_contract_round_trips(name, exported):
     assert con.spec_toml == spec.raw and con.spec_hash == spec_hash(spec)
     assert spec_hash(parse_spec(con.spec_toml)) == con.spec_hash
     assert con.code_hash == runs.code_hash()
-    assert con.input_names == list(model.input_names) and con.output_names == list(model.output_names)
+    # image inputs, then the int64 settings (ANF's kernel size), as the graph takes them
+    assert con.input_names + [st["input"] for st in con.settings] == list(model.input_names)
+    assert con.output_names == list(model.output_names)
+    assert [st["name"] for st in con.settings] == [st.name for st in spec.setting]
     layers = {i["name"]: i["layer"] for i in con.inputs}
     assert [layers[l] for l in spec.inputs.layers] == list(spec.inputs.layers)
-    assert all(i["layout"] == "NCHW" and i["transfer"] == "linear" for i in con.inputs)
+    assert all(i["layout"] == ("NSCHW" if i["name"] == "samples" else "NCHW") and i["transfer"] == "linear"
+               for i in con.inputs)
+    if spec.inputs.samples:
+        assert [(g["group"], g["transfer"]) for g in con.samples_input["groups"]] == list(spec.inputs.sample_groups)
     assert {i["name"]: i["channels"] for i in con.inputs}["color"] == 3
     assert con.stage_names == list(spec.stages)
     assert con.stage_of(f"/{spec.stages[-1]}/Mul_3") == spec.stages[-1] and con.stage_of("/other/Mul") is None
@@ -223,7 +231,7 @@ def test_failed_parity_raises_and_leaves_no_file(name, tmp_path):
 
 
 def test_ops_outside_stages_are_refused(tmp_path):
-    spec = load_spec(SPECS[0])
+    spec = load_spec("wskpn-3")
     inner = build_model(spec).deploy()
 
     class Wrapped(torch.nn.Module):  # its ops run under "/inner/..." and at the top level
@@ -256,7 +264,10 @@ def test_export_run_rebuilds_from_the_run_folder_only(name, tmp_path):
     model = build_model(spec)
     with torch.no_grad():
         for p in model.parameters():
-            p.add_(0.05 * torch.randn_like(p))
+            # half each tensor's own spread (ANF's deep U-Net explodes under a fixed 0.05: its
+            # parameters reach a·‖Δf‖² in the thousands, where float32 sums of any order differ)
+            scale = 0.05 if p.numel() < 2 else min(0.05, 0.5 * float(p.std()))
+            p.add_(scale * torch.randn_like(p))
         for m in model.modules():
             if isinstance(m, torch.nn.BatchNorm2d):
                 m.running_mean.uniform_(-0.2, 0.2)

@@ -50,6 +50,13 @@ LEAK = 0.01
 EPSILON = 1e-10
 #: Stages, in order.
 STAGES = ("embedding", "unet", "kernels")
+#: Affinity exponents a·‖f(p) − f(q)‖² are bounded by this: a tap weighs at least exp(−20) ≈
+#: 2e-9, which next to any weight that matters (a centre weight of 1e-3 or more) changes a sum by
+#: under 1e-5 of itself, yet keeps the sums of Eq. 6 and 8 far above their ε = 1e-10 and out of
+#: float32's underflow.  Unbounded, a pixel whose weights all underflow divides two rounding
+#: errors (an untrained model with perturbed weights gave onnxruntime and torch outputs 3x
+#: apart); bounded, such a pixel gets the mean of its taps, the same in every runtime.
+AFFINITY_BOUND = 20.0
 #: The run-time kernel-size setting's name.
 KERNEL_SIZE = "kernel_size"
 
@@ -94,9 +101,10 @@ def state_channels(p: ANFParams) -> dict[str, int]:
 
 @torch.jit.script
 def affinity_sums(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Tensor,
-                  mask: torch.Tensor, size: torch.Tensor, dilation: int, skip_centre: bool):
+                  mask: torch.Tensor, size: torch.Tensor, dilation: int, skip_centre: bool, bound: float):
     """Σ_q w(p, q)·x(q) and Σ_q w(p, q) over the size×size taps q = p + dilation·(i, j) of
-    every pixel p, w(p, q) = exp(−a(p)‖f(p) − g(q)‖²)·mask(q), taps outside the frame 0.
+    every pixel p, w(p, q) = exp(−min(a(p)‖f(p) − g(q)‖², bound))·mask(q), taps outside the
+    frame 0 (``bound``: :data:`AFFINITY_BOUND`; TorchScript takes no module constants).
 
     x (N, C, H, W); f, g (N, d, H, W) affinity features (g: of the frame the taps read);
     a (N, 1, H, W) >= 0 bandwidths; mask (N, 1, H, W) in [0, 1]; size: an odd int64 scalar
@@ -116,7 +124,8 @@ def affinity_sums(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Te
         dx = (i % k - r) * dilation
         if not (skip_centre and dy == 0 and dx == 0):
             d = f - gp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
-            wgt = torch.exp(-a * (d * d).sum(1, keepdim=True)) * mp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
+            e = torch.clamp(a * (d * d).sum(1, keepdim=True), max=bound)
+            wgt = torch.exp(-e) * mp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
             num = num + wgt * xp[:, :, pad + dy:pad + dy + h, pad + dx:pad + dx + w]
             den = den + wgt
     return num, den
@@ -126,7 +135,7 @@ def spatial_filter(x, f, a, c, size, dilation: int):
     """One spatial kernel of Eq. 4 applied as Eq. 6: (N, 3, H, W) -> (N, 3, H, W); also
     returns its (numerator, denominator) for Eq. 8's joint normalisation."""
     ones = torch.ones_like(a)
-    num, den = affinity_sums(x, f, f, a, ones, size, dilation, True)
+    num, den = affinity_sums(x, f, f, a, ones, size, dilation, True, AFFINITY_BOUND)
     return num + c * x, den + c
 
 
@@ -141,6 +150,7 @@ class Embedding(nn.Module):
         for i in range(p.embed_layers):
             layers += [nn.Conv2d(cin if i == 0 else p.embed_width, p.embed_width, 1), nn.LeakyReLU(LEAK)]
         self.mlp = nn.Sequential(*layers)
+        self.width = p.embed_width
 
     def features(self, samples: torch.Tensor) -> torch.Tensor:
         """The MLP's input: each group through its transfer, depth over the frame's max."""
@@ -159,7 +169,7 @@ class Embedding(nn.Module):
         n, s, c, h, w = x.shape
         # reshape with the traced sizes (``unflatten`` bakes the traced H, W into the graph)
         e = self.mlp(x.reshape(n * s, c, h, w))
-        return e.reshape(n, s, e.shape[1], h, w).mean(dim=1)
+        return e.reshape(n, s, self.width, h, w).mean(dim=1)
 
 
 def _conv(cin: int, cout: int, act: bool = True) -> nn.Module:
@@ -229,7 +239,8 @@ class Kernels(nn.Module):
             if i < k - 1:
                 x = num / (den + EPSILON)
             else:
-                tnum, tden = affinity_sums(prev_output, f, prev_features, b, history, size, 1, False)
+                tnum, tden = affinity_sums(prev_output, f, prev_features, b, history, size, 1, False,
+                                           AFFINITY_BOUND)
                 x = (num + tnum) / (den + tden + EPSILON)
                 features = f
         if self.training:
