@@ -197,3 +197,16 @@ def test_a_per_sample_model_on_plain_input_says_what_it_needs(anf):
     with pytest.raises(FrameError, match=r"reads per-sample data \(sample<i>\.\* layers\) and the frame has none"):
         den(fr)
     assert den.report.frames == 0
+
+
+def test_the_denoise_command_on_plain_images_says_it_needs_samples_in_one_line(anf, tmp_path, capsys):
+    from mcdenoise.runtime.cli import main
+    from mcdenoise.runtime.frames import write_rgb
+
+    path, _, _ = anf
+    write_rgb(tmp_path / "color.exr", synthetic_frame(16, 12, 0)["color"])
+    args = ["denoise", "--model", str(path), "--input", str(tmp_path / "color.exr"), "--output", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "reads per-sample data" in err[0] and "mcdenoise render" in err[0]
+    assert "Traceback" not in err[0]

@@ -120,3 +120,32 @@ def test_shards_side_by_side_merge_and_a_repeated_seed_is_an_error(tiny_dataset,
     shutil.copytree(seqs[0].folder, tmp_path / "merged" / "shard9" / os.path.basename(seqs[0].folder))
     with pytest.raises(FrameError, match="same scene seed"):
         discover(tmp_path / "merged")
+
+
+def test_per_sample_items_share_one_spp_per_batch_and_rotate_normals_with_the_image(tiny_dataset):
+    """A per-sample model's items: its ``samples`` input (S, F, c, c) per frame with the S the
+    batch drew; under every image symmetry the samples' screen normals stay consistent with
+    the item's pixel normal (their renormalised mean)."""
+    from mcdenoise.runtime.inputs import sample_channels
+
+    groups = ("diffuse_radiance", "specular_radiance", "normal", "depth")
+    ds = SequenceDataset(tiny_dataset, "all", ("color",), crop=32, spp_choices=(1, 2, 4), window=2,
+                         sample_groups=groups)
+    drawn = {ds.batch_spp(pos) for pos in range(30)}
+    assert drawn == {1, 2, 4}
+    n = ds.batch_spp(0)
+    batch = collate([ds[i, n] for i in range(3)])
+    assert batch["samples"].shape == (3, 2, n, 10, 32, 32)
+    nx = sample_channels(groups, "screen_xy")[0]
+    for k in range(8):
+        item = ds.make_item(0, 0, 8, 8, 32, 4, k)
+        mean = item["samples"][:, :, nx:nx + 3].mean(axis=1)          # (T, 3, c, c)
+        length = np.linalg.norm(mean, axis=1, keepdims=True)
+        hit = length[:, 0] > 0.5
+        got = (mean / np.maximum(length, 1e-6)).transpose(0, 2, 3, 1)[hit]
+        want = item["normal"].transpose(0, 2, 3, 1)[hit]
+        np.testing.assert_allclose(got, want, atol=1e-4, err_msg=f"symmetry {k}")
+    # the radiance channels sum to the colour: diffuse + specular, averaged over samples
+    item = ds.make_item(0, 0, 0, 0, 32, 4, 3)
+    np.testing.assert_allclose(item["samples"][:, :, 0:3].mean(1) + item["samples"][:, :, 3:6].mean(1),
+                               item["color"], rtol=1e-5, atol=1e-6)

@@ -152,3 +152,23 @@ def test_learning_curves_train_every_variant_and_resume(tiny_dataset, tmp_path):
     assert (tmp_path / "c" / "curves.png").read_bytes()[:4] == b"\x89PNG"
     assert "wskpn-3-widths-8-n1" in (tmp_path / "c" / "curves.md").read_text()
     assert main([*argv[:-2], "--vary", "no_such_key", "1"]) == 2
+
+
+def test_anf_trains_on_one_spp_per_batch_exports_and_denoises_the_rendered_frames(tiny_dataset, tmp_path):
+    """The per-sample path end to end: ANF trains (samples of one S per batch, its
+    regulariser, 2-frame windows), resumes, exports, and the driver denoises rendered frames."""
+    from mcdenoise.runtime.frames import frame_paths, read_frame
+    from mcdenoise.training.dataset import discover
+
+    kw = dict(batch_size=2, crop=32, window=2, spp=[1, 2, 4], threads=1, quiet=True)
+    run = tmp_path / "anf"
+    row = train("anf-s", tiny_dataset, run, steps=2, **kw)
+    assert np.isfinite(row["val_psnr"]) and row["step"] == 2
+    assert json.loads((run / runs.CONFIG_FILE).read_text())["regularizer_weight"] == 1e-5
+    train("anf-s", tiny_dataset, run, steps=3, resume=True, **kw)
+    export_run(run, tmp_path / "anf.onnx")
+    den = Denoiser.load(tmp_path / "anf.onnx", log=lambda m: None, settings={"kernel_size": 5})
+    for path in frame_paths(discover(tiny_dataset)[0].folder):
+        out = den(read_frame(path))
+        assert out.shape == (64, 64, 3) and np.isfinite(out).all() and (out >= 0).all()
+    assert den.report.frames == 3 and not den.report.resets
