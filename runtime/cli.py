@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("mcdenoise.export.onnx_export", "export a run folder to a self-describing ONNX file"),
     "denoise": ("mcdenoise.runtime.denoise", "denoise a frame sequence with an ONNX model, print stage timings"),
     "evaluate": ("mcdenoise.training.evaluate", "score ONNX models, Open Image Denoise and the noisy input on held-out sequences"),
+    "sweep": ("mcdenoise.training.sweep", "quality and time against a run-time setting (ANF's kernel size, Fig. 7)"),
     "curves": ("mcdenoise.training.curves", "learning curves: test PSNR against examples seen, by data size and a spec value"),
     "bench": ("mcdenoise.training.bench", "benchmark models: per-stage time (torch vs onnxruntime) and quality"),
     "stress": ("mcdenoise.training.stress", "error increase of every method on fireflies, NaN/Inf, cuts, defocus, motion blur, exposure..."),

@@ -10,7 +10,7 @@ import torch
 from mcdenoise.export.onnx_export import export_model, parity_errors, parity_ok
 from mcdenoise.runtime.contract import SAMPLES_INPUT
 from mcdenoise.runtime.denoiser import Denoiser
-from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError
+from mcdenoise.runtime.frames import SAMPLE_GROUPS, Frame, FrameError
 from mcdenoise.runtime.inputs import sample_channels, sample_inputs
 from mcdenoise.training.harness import synthetic_frame
 from mcdenoise.training.models import example_inputs
@@ -122,32 +122,13 @@ def test_embedding_is_a_mean_over_samples(anf):
     assert e.shape == (1, 32, 16, 16)
 
 
-def _with_samples(fr: dict, spp: int, seed: int) -> Frame:
-    """A synthetic frame with ``spp`` per-sample features whose means are its pixel layers."""
-    rng = np.random.default_rng(seed)
-    h, w, _ = fr["color"].shape
-    samples = np.zeros((spp, h, w, len(SAMPLE_FEATURES)), np.float32)
-    g = SAMPLE_GROUPS
-    noise = rng.exponential(1.0, (spp, h, w, 3)).astype(np.float32)
-    samples[..., g["radiance"]] = fr["albedo"] * noise
-    samples[..., g["albedo"]] = fr["albedo"]
-    samples[..., g["normal"]] = fr["normal"]
-    samples[..., g["depth"]] = fr["depth"]
-    samples[..., g["position"]] = fr["position"]
-    samples[..., g["roughness"]] = 1.0
-    samples[..., g["specular"]] = (rng.random((spp, h, w, 1)) < 0.1)
-    out = dict(fr, color=samples[..., g["radiance"]].mean(0), samples=samples,
-               meta={"camera": {"to_world": np.eye(4).tolist()}})
-    return Frame(**out)
-
-
 def test_driver_matches_the_training_unroll(anf):
     """Three frames with per-sample data through the driver and through train.run_window: the
     same samples input (sanitised, screen normals, exposed radiance), state and outputs."""
     from mcdenoise.training.train import run_window
 
     path, spec, model = anf
-    frames = [_with_samples(synthetic_frame(20, 16, t), 3, t) for t in range(3)]
+    frames = [Frame(**synthetic_frame(20, 16, t, spp=3)) for t in range(3)]
     den = Denoiser.load(path, log=lambda m: None)
     outs = [den(f) for f in frames]
     groups = [g for g, _ in spec.inputs.sample_groups]
@@ -171,7 +152,7 @@ def test_driver_matches_the_training_unroll(anf):
 
 
 def test_sample_inputs_sanitise_expose_and_rotate_normals():
-    fr = _with_samples(synthetic_frame(8, 6, 0), 2, 0)
+    fr = Frame(**synthetic_frame(8, 6, 0, spp=2))
     fr.samples[0, 1, 2, SAMPLE_GROUPS["radiance"].start] = np.nan
     fr.samples[1, 3, 4, SAMPLE_GROUPS["radiance"].start + 1] = -5.0
     fr.samples[0, 0, 0, SAMPLE_GROUPS["depth"].start] = np.inf
@@ -183,7 +164,7 @@ def test_sample_inputs_sanitise_expose_and_rotate_normals():
     assert x.shape == (1, 2, 7, 6, 8) and np.isfinite(x).all() and (x[:, :, :3] >= 0).all()
     assert rep.nonfinite and rep.negative
     assert sample_channels(groups, "radiance") == [0, 1, 2] and sample_channels(groups, "screen_xy") == [3, 4]
-    clean = sample_inputs(_with_samples(synthetic_frame(8, 6, 0), 2, 0), groups, None, scale=2.0)
+    clean = sample_inputs(Frame(**synthetic_frame(8, 6, 0, spp=2)), groups, None, scale=2.0)
     diffuse = fr.sample_feature("diffuse_radiance")[1, 2, 2]
     np.testing.assert_allclose(clean[0, 1, :3, 2, 2], 2.0 * diffuse, rtol=1e-6)
     # the identity camera's screen frame flips x and y of the world normal (-z here stays -z)

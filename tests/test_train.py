@@ -172,3 +172,14 @@ def test_anf_trains_on_one_spp_per_batch_exports_and_denoises_the_rendered_frame
         out = den(read_frame(path))
         assert out.shape == (64, 64, 3) and np.isfinite(out).all() and (out >= 0).all()
     assert den.report.frames == 3 and not den.report.resets
+    # Fig. 7's sweep: the same loaded file at two kernel sizes, quality and time per size
+    assert main(["sweep", str(tmp_path / "anf.onnx"), "--data", tiny_dataset, "--values", "3", "5",
+                 "--spp", "2", "--out", str(tmp_path / "sweep")]) == 0
+    res = json.loads((tmp_path / "sweep" / "sweep.json").read_text())
+    assert res["setting"] == "kernel_size" and set(res["results"]) == {"3", "5"}
+    assert res["results"]["3"]["psnr"] != res["results"]["5"]["psnr"]
+    assert all(r["ms"] > 0 and r["frames"] == 6 for r in res["results"].values())
+    assert (tmp_path / "sweep" / "sweep.png").stat().st_size > 0
+    assert "mcdenoise sweep" in (tmp_path / "sweep" / "sweep.md").read_text()
+    assert main(["sweep", str(tmp_path / "anf.onnx"), "--data", tiny_dataset, "--values", "4",
+                 "--out", str(tmp_path / "s2")]) == 2

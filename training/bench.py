@@ -172,6 +172,10 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
     return qual, testsets
 
 
+#: Samples per pixel of the timing frames when a per-sample model is timed (ANF Table 1: 4 spp).
+TIMING_SPP = 4
+
+
 def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, seed, log, device="cpu"):
     """Per-stage and whole-frame medians of every model and built-in method at every size:
     all methods timed interleaved (:func:`time_interleaved`), then torch eager per model."""
@@ -189,7 +193,10 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
         methods = {b: builtin_method(b, threads, device) for b in builtins}
         runners = {**{("model", p): d for p, d in dens.items()},
                    **{("method", b): m for b, m in methods.items() if m is not None}}
-        ms = time_interleaved(runners, w, h, frames, warmup, seed)
+        # Per-sample models (ANF) read samples: the timing frames carry TIMING_SPP of them, as
+        # the paper's Table 1 does (4 spp), and every method gets the same frames.
+        spp = TIMING_SPP if any(d.contract.samples_input for d in dens.values()) else 0
+        ms = time_interleaved(runners, w, h, frames, warmup, seed, spp)
         results = {path: (den.contract, timing.medians(den.stage_times()[warmup:])) for path, den in dens.items()}
         # torch eager alone, after the other methods' sessions and thread pools are released
         del dens, methods, runners
@@ -200,7 +207,7 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
             if torch_too:
                 spec = parse_spec(c.spec_toml, f"{path} (embedded spec)")
                 model = build_model(spec).eval().deploy()
-                torch_med = bench_torch(model, spec.protocol, stages, w, h, frames, warmup, seed, device)
+                torch_med = bench_torch(model, spec.protocol, stages, w, h, frames, warmup, seed, device, TIMING_SPP)
             order = (list(timing.DRIVER_STAGES_BEFORE) + stages + list(timing.DRIVER_STAGES_AFTER)
                      + [timing.GRAPH, timing.TOTAL])
             for s in order:

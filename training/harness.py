@@ -49,10 +49,12 @@ def oidn_unet_count(w: int, h: int, in_channels: int = 9) -> dict:
 SYNTHETIC_PAN = (0.7, 0.3)
 
 
-def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
+def synthetic_frame(w: int, h: int, t: int, seed: int = 0, spp: int = 0) -> dict:
     """A plausible frame: smooth albedo/normals, noisy colour, a slow sub-pixel pan
     (:data:`SYNTHETIC_PAN`) over a plane 5-6 units away whose world positions move with it,
-    so the reprojection's consistency test passes as on a real surface."""
+    so the reprojection's consistency test passes as on a real surface.  ``spp`` > 0 adds
+    that many per-sample features (``samples``, for per-sample models) and makes ``color``
+    their mean, as a render does."""
     rng = np.random.default_rng(seed + t)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     albedo = np.stack([0.5 + 0.3 * np.sin(xx / 17), 0.5 + 0.3 * np.cos(yy / 23), np.full_like(xx, 0.6)], -1)
@@ -64,9 +66,30 @@ def synthetic_frame(w: int, h: int, t: int, seed: int = 0) -> dict:
     color = albedo * rng.exponential(1.0, (h, w, 3)).astype(np.float32)
     motion = np.empty((h, w, 2), np.float32)
     motion[..., 0], motion[..., 1] = SYNTHETIC_PAN
-    return {"color": color.astype(np.float32), "albedo": albedo.astype(np.float32),
-            "normal": normal, "depth": depth.astype(np.float32), "position": position.astype(np.float32),
-            "motion": motion, "meta": {}}
+    out = {"color": color.astype(np.float32), "albedo": albedo.astype(np.float32),
+           "normal": normal, "depth": depth.astype(np.float32), "position": position.astype(np.float32),
+           "motion": motion, "meta": {}}
+    if spp:
+        out.update(synthetic_samples(out, spp, rng))
+    return out
+
+
+def synthetic_samples(frame: dict, spp: int, rng: np.random.Generator) -> dict:
+    """``spp`` per-sample features (S, H, W, F) for a :func:`synthetic_frame` dict whose means
+    are its pixel layers (radiance: albedo times exponential noise; a tenth of the samples hit
+    specular material), the ``color`` they average to, and an identity camera (so screen and
+    world normals differ by the documented axis flips)."""
+    from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS as g
+
+    h, w, _ = frame["color"].shape
+    samples = np.zeros((spp, h, w, len(SAMPLE_FEATURES)), np.float32)
+    samples[..., g["radiance"]] = frame["albedo"] * rng.exponential(1.0, (spp, h, w, 3))
+    for name in ("albedo", "normal", "depth", "position"):
+        samples[..., g[name]] = frame[name]
+    samples[..., g["roughness"]] = 1.0
+    samples[..., g["specular"]] = rng.random((spp, h, w, 1)) < 0.1
+    return {"samples": samples, "color": samples[..., g["radiance"]].mean(0),
+            "meta": {**frame["meta"], "camera": {"to_world": np.eye(4).tolist()}}}
 
 
 def onnx_driver(path: str, threads: int, device: str = "cpu"):
@@ -103,18 +126,18 @@ def builtin_method(name: str, threads: int, device: str = "cpu"):
 SETTLE_S = 0.01
 
 
-def time_interleaved(runners: dict, w: int, h: int, frames: int, warmup: int, seed: int = 0) -> dict:
+def time_interleaved(runners: dict, w: int, h: int, frames: int, warmup: int, seed: int = 0, spp: int = 0) -> dict:
     """Run every method of ``runners`` (name -> callable(frame)) on the synthetic sequence,
     interleaved frame by frame (frame t goes through every method before frame t + 1, the
     order rotating), so that a machine slowing down or speeding up mid-run affects every method
     alike and their ratios stay honest.  Returns name -> list of whole-call ms per frame
-    (frames prepared outside the timed call)."""
+    (frames prepared outside the timed call; with ``spp`` per-sample data too)."""
     names = list(runners)
     ms: dict[str, list] = {n: [] for n in names}
     for t in range(warmup + frames):
         k = t % max(1, len(names))
         for n in names[k:] + names[:k]:
-            fr = synthetic_frame(w, h, t, seed)
+            fr = synthetic_frame(w, h, t, seed, spp)
             time.sleep(SETTLE_S)
             t0 = time.perf_counter()
             runners[n](fr)
@@ -140,7 +163,7 @@ def oidn_cuda(quality: str):
 
 
 def bench_torch(model, protocol, contract_stages, w: int, h: int, frames: int, warmup: int, seed: int = 0,
-                device: str = "cpu"):
+                device: str = "cpu", spp: int = 4):
     """{stage: median ms} and the graph's total of torch eager, stages by forward hooks (on
     ``device="cuda"`` each hook synchronises, so a stage's time is its kernels' time).
     ``protocol`` (:class:`runtime.temporal.Protocol`) names the inputs a history fills."""
@@ -153,8 +176,9 @@ def bench_torch(model, protocol, contract_stages, w: int, h: int, frames: int, w
             torch.cuda.synchronize()
         return time.perf_counter()
 
+    from mcdenoise.runtime.contract import SAMPLES_INPUT
     from mcdenoise.runtime.frames import Frame
-    from mcdenoise.runtime.inputs import frame_inputs
+    from mcdenoise.runtime.inputs import frame_inputs, sample_inputs
 
     times: dict[str, list] = {}
     starts: dict[str, float] = {}
@@ -169,9 +193,14 @@ def bench_torch(model, protocol, contract_stages, w: int, h: int, frames: int, w
     def inputs(t):
         # A fresh frame per call, prepared outside the timed region, as the onnxruntime driver
         # gets one: timing one tensor set over and over would run torch from warm caches.
-        frame = Frame(**synthetic_frame(w, h, t, seed))
-        feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(
-            frame, [n for n in model.input_names if n not in protocol.inputs]).items()}
+        groups = [g for g, _ in getattr(model, "sample_groups", ())]
+        frame = Frame(**synthetic_frame(w, h, t, seed, spp if groups else 0))
+        layers = [n for n in model.input_names if n not in protocol.inputs and n != SAMPLES_INPUT
+                  and n not in getattr(model, "settings", {})]
+        feeds = {k: torch.from_numpy(v).to(device) for k, v in frame_inputs(frame, layers).items()}
+        if groups:
+            feeds[SAMPLES_INPUT] = torch.from_numpy(sample_inputs(frame, groups)).to(device)
+        feeds.update({k: torch.tensor(v) for k, v in getattr(model, "settings", {}).items()})
         # A history in full swing: every pixel has one, the state holds colour-like values.
         for _, inp, _, ch in protocol.state:
             feeds[inp] = feeds["color"][:, :1].expand(-1, ch, -1, -1).clone()
