@@ -3,11 +3,13 @@
     python -m export.timing                          # everything below, 2 threads
     python -m export.timing --what kernels --sizes 256x256
     python -m export.timing --what models --specs wskpn-3 --repeats 9
+    python -m export.timing --what models --specs anf-s --sizes 256x256 --spp 1 2 4 8
 
 ``kernels``: WSKPN's reconstruction (six fused kernels 3..13 on a 3-channel image) with the
 "unfold" reference path vs the "boxsum" path, each exported alone.  ``models``: the deployed
 graph of each spec (random initialisation, deterministic seed), plus the per-stage split of
-the onnxruntime time from its profiler (node names ``/<stage>/``).  Reported: the median of
+the onnxruntime time from its profiler (node names ``/<stage>/``); a per-sample model at each
+``--spp`` (its embedding should grow linearly in S, nothing after the average should move).  Reported: the median of
 ``--repeats`` runs after ``--warmup`` runs, in milliseconds; nothing is asserted.
 This is the command behind the timings quoted for the kernel path choice.
 """
@@ -100,7 +102,7 @@ def time_kernels(size: tuple[int, int], threads: int, warmup: int, repeats: int,
 
 
 def time_model(spec_name: str, size: tuple[int, int], threads: int, warmup: int, repeats: int,
-               stages: bool = True) -> dict[str, float]:
+               stages: bool = True, spp: int = 4) -> dict[str, float]:
     """ms of the deployed graph of ``spec_name`` at ``size`` (W, H): {"ort": ms, "torch": ms,
     "ort <stage>": ms...}.  Exported with :func:`export.onnx_export.export_model` (all checks)."""
     import torch
@@ -117,7 +119,7 @@ def time_model(spec_name: str, size: tuple[int, int], threads: int, warmup: int,
     with tempfile.TemporaryDirectory() as d:
         f = os.path.join(d, "model.onnx")
         export_model(spec, model, f)
-        feeds = example_inputs(model, 1, h, w, seed=0)
+        feeds = example_inputs(model, 1, h, w, seed=0, spp=spp)
         sess = _session(f, threads)
         res["ort"] = _median_ms(lambda: sess.run(None, feeds), warmup, repeats)
         if stages:
@@ -138,6 +140,7 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--warmup", type=int, default=2)
     p.add_argument("--repeats", type=int, default=7)
+    p.add_argument("--spp", type=int, nargs="+", default=[4], help="samples per pixel of per-sample models")
     a = p.parse_args(argv)
     import torch
 
@@ -153,10 +156,14 @@ def main(argv=None) -> int:
     if a.what in ("models", "all"):
         from mcdenoise.training.specs import list_specs
 
+        from mcdenoise.training.specs import load_spec
+
         for name in a.specs or list_specs():
             for size in a.sizes:
-                r = time_model(name, size, a.threads, a.warmup, a.repeats)
-                print(f"{name} {size[0]}x{size[1]}: " + ", ".join(f"{k} {v:.1f} ms" for k, v in r.items()), flush=True)
+                for spp in a.spp if load_spec(name).inputs.samples else [None]:
+                    r = time_model(name, size, a.threads, a.warmup, a.repeats, spp=spp or 4)
+                    print(f"{name} {size[0]}x{size[1]}{f' {spp} spp' if spp else ''}: "
+                          + ", ".join(f"{k} {v:.1f} ms" for k, v in r.items()), flush=True)
     return 0
 
 

@@ -68,11 +68,16 @@ def _profile_events(profile_path: str):
 def _attributed(nodes, keys, start: float, end: float, stages: list[str]):
     """(node event, stage) for the kernels that ran within [start, end], in order: a node named
     ``/<stage>/...`` belongs to that stage, any other to the stage of the node before it.
-    ``keys``: the nodes' start times (sorted)."""
+    A kernel that runs inside another's span (the body of a ``Loop``, ANF's taps) is left out:
+    the enclosing node's time already holds it.  ``keys``: the nodes' start times (sorted)."""
     current = stages[0] if stages else None
+    busy_until = -1.0
     for e in nodes[bisect.bisect_left(keys, start):]:
         if e["ts"] > end:
             break
+        if e["ts"] + e["dur"] <= busy_until:
+            continue
+        busy_until = e["ts"] + e["dur"]
         name = e["name"]
         for s in stages:
             if name.startswith(f"/{s}/"):

@@ -191,3 +191,23 @@ def test_the_denoise_command_on_plain_images_says_it_needs_samples_in_one_line(a
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "reads per-sample data" in err[0] and "mcdenoise render" in err[0]
     assert "Traceback" not in err[0]
+
+
+def test_loop_bodies_are_not_counted_twice_in_the_stage_times(tmp_path):
+    """A profiled Loop records its body's kernels inside its own span: the stage sums count
+    the Loop once (a synthetic onnxruntime profile: run 0-100, unet 0-10, Loop 10-90 with two
+    body kernels, a last kernel 90-95)."""
+    import json
+
+    from mcdenoise.runtime.timing import graph_stage_times
+
+    def node(name, ts, dur):
+        return {"cat": "Node", "name": name + "_kernel_time", "ts": ts, "dur": dur}
+
+    events = [{"name": "model_run", "ts": 0, "dur": 100_000}, node("/unet/Conv", 0, 10_000),
+              node("/kernels/Loop", 10_000, 80_000), node("Mul_3", 11_000, 30_000), node("Add_4", 41_000, 40_000),
+              node("/kernels/Div", 90_000, 5_000)]
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(events))
+    assert graph_stage_times(str(path), ["embedding", "unet", "kernels"]) == [
+        {"embedding": 0.0, "unet": 10.0, "kernels": 85.0}]
