@@ -211,3 +211,36 @@ def test_loop_bodies_are_not_counted_twice_in_the_stage_times(tmp_path):
     path.write_text(json.dumps(events))
     assert graph_stage_times(str(path), ["embedding", "unet", "kernels"]) == [
         {"embedding": 0.0, "unet": 10.0, "kernels": 85.0}]
+
+
+def _arrays(obj, seen=None):
+    """Every numpy array reachable from ``obj`` through dicts, lists, tuples and attributes."""
+    seen = set() if seen is None else seen
+    if id(obj) in seen:
+        return []
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return [obj]
+    if isinstance(obj, dict):
+        items = list(obj.values())
+    elif isinstance(obj, (list, tuple)):
+        items = list(obj)
+    elif hasattr(obj, "__dict__") and type(obj).__module__.startswith("mcdenoise"):
+        items = list(vars(obj).values())
+    else:
+        return []
+    return [a for x in items for a in _arrays(x, seen)]
+
+
+def test_the_driver_keeps_no_samples_between_frames(anf):
+    """What the driver holds after a frame: its declared state, the guide planes and its plane
+    buffers, nothing of the frame's per-sample data (8 spp: 8 x 18 floats per pixel)."""
+    path, spec, _ = anf
+    den = Denoiser.load(path, log=lambda m: None)
+    h, w = 24, 32
+    for t in range(2):
+        den(Frame(**synthetic_frame(w, h, t, spp=8)))
+    held = sum(a.nbytes for a in _arrays(den))
+    state = sum(s.channels for s in spec.state) * h * w * 4
+    assert held < state + 40 * h * w * 4                # state, guides, the two plane-buffer sets
+    assert held < 8 * 18 * h * w * 4
