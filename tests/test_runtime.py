@@ -37,8 +37,8 @@ def model_file(tmp_path_factory, request):
     return path, spec, model
 
 
-def _frame(t, w=24, h=20, **kw):
-    f = synthetic_frame(w, h, t)
+def _frame(t, w=24, h=20, spp=2, **kw):
+    f = synthetic_frame(w, h, t, spp=spp)   # with samples: shipped per-sample models read them
     f.update(kw)
     return Frame(**f)
 
