@@ -165,6 +165,8 @@ class Embedding(nn.Module):
         return torch.cat(parts, dim=2)
 
     def forward(self, samples: torch.Tensor) -> torch.Tensor:
+        """samples (N, S, F, H, W): linear, sanitised, exposed (runtime.inputs.sample_inputs)
+        -> e (N, E, H, W), the mean over S of the per-sample MLP."""
         x = self.features(samples)
         n, s, c, h, w = x.shape
         # reshape with the traced sizes (``unflatten`` bakes the traced H, W into the graph)
@@ -199,6 +201,9 @@ class UNet(nn.Module):
             cin = w
 
     def forward(self, e, prev_embed, history):
+        """e, prev_embed (N, E, H, W); history (N, 1, H, W) in [0, 1] -> (N, K(d+2)+2, H, W) raw
+        (activations are applied by the kernels stage). Any H, W (padded to a multiple of
+        2^levels inside, cropped back)."""
         h, w = e.shape[2], e.shape[3]
         x = pad_to_multiple(torch.cat([e, prev_embed, history], dim=1), self.multiple)
         skips = []
@@ -224,6 +229,10 @@ class Kernels(nn.Module):
         self.regularizer = None
 
     def forward(self, params, e, color, prev_embed, prev_radiance, prev_features, prev_output, history, size):
+        """params: the U-Net's output; e (N, E, H, W); color (N, 3, H, W) linear HDR (exposed);
+        prev_*: the driver's reprojected state (zeros without history); history (N, 1, H, W);
+        size: int64 scalar kernel size.  Returns (output, next_embed, next_radiance,
+        next_features, next_output), output (N, 3, H, W) linear HDR."""
         k, d = self.k, self.d
         lam = torch.sigmoid(params[:, -1:]) * history
         b = params[:, -2:-1] ** 2
