@@ -189,23 +189,39 @@ def _keys(seqs):
 
 
 
-def _strip(seqs):
-    """Drop per-sample data (methods see pixel layers) to keep memory small."""
+def _strip(seqs, keep: bool = False):
+    """Drop per-sample data to keep memory small, unless ``keep`` (a per-sample method, ANF,
+    is among the methods: it reads the samples)."""
+    if keep:
+        return seqs
     for s in seqs:
         for fr in s:
             fr.samples = None
     return seqs
 
 
-def perturbation_runs(data: list[list[Frame]], spp: int, seed: int) -> tuple[dict, list[Case]]:
+def reads_samples(name: str) -> bool:
+    """Whether method ``name`` is an mcdenoise ONNX file with a per-sample input."""
+    if not name.endswith(".onnx"):
+        return False
+    import onnxruntime as ort
+
+    from mcdenoise.runtime.contract import parse_contract
+
+    meta = ort.InferenceSession(name, providers=["CPUExecutionProvider"]).get_modelmeta().custom_metadata_map
+    return parse_contract(meta).samples_input is not None
+
+
+def perturbation_runs(data: list[list[Frame]], spp: int, seed: int, keep_samples: bool = False) -> tuple[dict, list[Case]]:
     """The runs and cases made from the data set's frames (see the module docstring).  The
-    runs' frames carry no per-sample data (dropped once the pixel layers are made)."""
+    runs' frames carry no per-sample data (dropped once the pixel layers are made) unless
+    ``keep_samples``."""
     clean = [[at_spp(f, spp) for f in s] for s in data]
     runs: dict[str, Run] = {}
     cases = []
 
     def add(name: str, seqs, keys=None, scale: float = 1.0) -> None:
-        runs[name] = Run(name, _strip(seqs), keys or _keys(seqs), scale)
+        runs[name] = Run(name, _strip(seqs, keep_samples), keys or _keys(seqs), scale)
 
     def rng(case_id: int, i: int, t: int):
         return np.random.default_rng([seed, case_id, i, t])
@@ -217,7 +233,7 @@ def perturbation_runs(data: list[list[Frame]], spp: int, seed: int) -> tuple[dic
     cases.append(Case("nan-inf", f"{NONFINITE_DENSITY * 1e3:g} sample per 1000 pixels each with NaN "
                       "radiance, +Inf radiance, NaN in every feature", "nan-inf", "clean", True))
     one = [[at_spp(f, 1) for f in s] for s in data]
-    _strip(clean)
+    _strip(clean, keep_samples)
     if len(clean) >= 2:
         for name, flagged in (("cut", True), ("cut-unflagged", False)):
             stream = [replace(f, meta=dict(f.meta, cut=flagged and t == 0),
@@ -274,7 +290,8 @@ def _fresh(fr: Frame) -> Frame:
     """A copy a method may modify without touching the next method's input."""
     arrays = {k: (None if getattr(fr, k) is None else getattr(fr, k).copy())
               for k in ("color", "albedo", "normal", "depth", "position", "motion", "valid", "reference")}
-    return Frame(**arrays, samples=None, meta=json.loads(json.dumps(fr.meta)), path=fr.path)
+    return Frame(**arrays, samples=None if fr.samples is None else fr.samples.copy(),
+                 meta=json.loads(json.dumps(fr.meta)), path=fr.path)
 
 
 def run_method(method, run: Run) -> Result:
@@ -409,8 +426,9 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
             raise FrameError(f"no --data and the base stress set is not rendered in {render_dir} (--no-render)")
         sets["base"] = {**info, "folder": folder}
         data = folder
+    keep = any(reads_samples(m) for m in methods)
     data_seqs = read_sequences(data, limit=limit)
-    runs, cases = perturbation_runs(data_seqs, spp, seed)
+    runs, cases = perturbation_runs(data_seqs, spp, seed, keep)
     del data_seqs
     # rendered sets; the base set is the clean run when it is the data set
     alias = {"base": "clean"} if "base" in sets else {}
@@ -425,7 +443,7 @@ def stress(methods: list[str] | None = None, data: str | None = None, render_dir
             if folder is None:
                 missing = True
                 continue
-            seqs = _strip([[at_spp(f, spp) for f in s] for s in read_sequences(folder, limit=limit)])
+            seqs = _strip([[at_spp(f, spp) for f in s] for s in read_sequences(folder, limit=limit)], keep)
             runs[name] = Run(name, seqs, _keys(seqs))
         cases.append(Case(case_name, what, alias.get(set_name, set_name), alias.get(clean_name, clean_name),
                           False, skipped=f"set not rendered in {render_dir} (--no-render)" if missing else None,
