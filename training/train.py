@@ -365,9 +365,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if bar is not None:
         bar.close()
     save()
-    if rank != 0:
-        return {}
-    return _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True, **val_kw)
+    row = {} if rank != 0 else _validate(run, model, val_set, protocol, step, epoch, elapsed, None, final=True,
+                                         **val_kw)
+    if world > 1:
+        # Every process leaves the group together: a process that exits with gloo's threads
+        # still running aborts ("terminate called without an active exception", exit -6).
+        dist.barrier()
+        dist.destroy_process_group()
+    return row
 
 
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
