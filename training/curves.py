@@ -53,7 +53,7 @@ def curves(spec: str, data: str, test: str, out: str, sequences=(None,), vary: t
     spp, seed, threads, ...). Returns {run name: {"variant", "sequences", "points": [(examples,
     frames, test PSNR), ...]}}."""
     from mcdenoise.training import runs
-    from mcdenoise.training.specs import load_spec
+    from mcdenoise.training.specs import load_spec, parse_spec
     from mcdenoise.training.train import train
 
     base = load_spec(spec)
@@ -65,7 +65,9 @@ def curves(spec: str, data: str, test: str, out: str, sequences=(None,), vary: t
         variants = []
         for v in values:
             text = spec_variant(base.path.read_text(), key, v)
-            path = outp / "specs" / f"{base.name}-{key}-{len(variants)}.toml"
+            # Named by the variant (its spec name), not by its position: two processes training
+            # different values into one --out must not overwrite each other's spec file.
+            path = outp / "specs" / f"{parse_spec(text).name}.toml"
             path.write_text(text)
             load_spec(path)                       # a bad value fails here, with the spec's own message
             variants.append((f"{key}={v}", path))
