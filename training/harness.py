@@ -79,7 +79,7 @@ def synthetic_samples(frame: dict, spp: int, rng: np.random.Generator) -> dict:
     are its pixel layers (radiance: albedo times exponential noise; a tenth of the samples hit
     specular material), the ``color`` they average to, and an identity camera (so screen and
     world normals differ by the documented axis flips)."""
-    from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS as g
+    from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS as g, pixel_means
 
     h, w, _ = frame["color"].shape
     samples = np.zeros((spp, h, w, len(SAMPLE_FEATURES)), np.float32)
@@ -88,7 +88,7 @@ def synthetic_samples(frame: dict, spp: int, rng: np.random.Generator) -> dict:
         samples[..., g[name]] = frame[name]
     samples[..., g["roughness"]] = 1.0
     samples[..., g["specular"]] = rng.random((spp, h, w, 1)) < 0.1
-    return {"samples": samples, "color": samples[..., g["radiance"]].mean(0),
+    return {"samples": samples, "color": pixel_means(samples)["color"],
             "meta": {**frame["meta"], "camera": {"to_world": np.eye(4).tolist()}}}
 
 
