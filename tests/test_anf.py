@@ -244,3 +244,9 @@ def test_the_driver_keeps_no_samples_between_frames(anf):
     state = sum(s.channels for s in spec.state) * h * w * 4
     assert held < state + 40 * h * w * 4                # state, guides, the two plane-buffer sets
     assert held < 8 * 18 * h * w * 4
+
+
+@pytest.mark.parametrize("name,params", [("anf", 942_240), ("anf-s", 134_016)])
+def test_parameter_counts_are_what_the_readme_says(name, params):
+    """The README and model card quote these; anf's matches the paper's 0.94 million (§5.4)."""
+    assert sum(p.numel() for p in build_model(load_spec(name)).parameters()) == params
