@@ -2,7 +2,9 @@
 
 :func:`export_model` works on any spec + model (trained or freshly initialised), so tests and
 benchmarks need no run folder; :func:`export_run` rebuilds the model from a run folder only
-(:func:`training.runs.load_run`).  Every export
+(:func:`training.runs.load_run`), and :func:`reexport` from an earlier export (its contract's
+spec and its weights), so a graph change reaches shipped models whose run folder is gone.
+Every export
 
 1. traces ``model.deploy()`` with the TorchScript exporter (``dynamo=False``; fast, and the
    shared README's measurements favour its op choices) with dynamic N, H, W on every tensor;
@@ -327,15 +329,56 @@ def export_run(run_dir: str | os.PathLike, out_path: str | os.PathLike, opset: i
     return export_model(spec, model, out_path, opset, code_hash=ch)
 
 
+def load_exported(path: str | os.PathLike):
+    """(spec, model, contract) of an earlier export: the spec embedded in its contract, built,
+    with every parameter and buffer read from the initializer of the same name.
+
+    Raises ExportError when a tensor of the model is missing or has another shape (an export
+    whose constant folding merged it away, or a spec that changed its layers): that file can
+    only be re-made from its run folder."""
+    import onnx
+    import torch
+    from onnx import numpy_helper
+
+    from mcdenoise.training.specs import build_model, parse_spec
+
+    proto = onnx.load(str(path))
+    contract = parse_contract({p.key: p.value for p in proto.metadata_props})
+    spec = parse_spec(contract.spec_toml, f"{path} (embedded spec)")
+    model = build_model(spec)
+    weights = {i.name: i for i in proto.graph.initializer}
+    state = {}
+    for name, tensor in model.state_dict().items():
+        if name not in weights:
+            raise ExportError(f"{path}: no initializer {name!r} for the model's tensor of that name; "
+                              f"re-export it from its run folder (mcdenoise export RUN)")
+        value = numpy_helper.to_array(weights[name])
+        if tuple(value.shape) != tuple(tensor.shape):
+            raise ExportError(f"{path}: initializer {name!r} is {list(value.shape)}, the model's tensor "
+                              f"{list(tensor.shape)}; re-export it from its run folder")
+        state[name] = torch.from_numpy(value.copy()).to(tensor.dtype)
+    model.load_state_dict(state)
+    return spec, model, contract
+
+
+def reexport(src: str | os.PathLike, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET) -> ExportReport:
+    """Export the model of an earlier export ``src`` again with the current graph code (the
+    weights and the code hash that trained them carried over; see :func:`load_exported`)."""
+    spec, model, contract = load_exported(src)
+    return export_model(spec, model, out_path, opset, code_hash=contract.code_hash)
+
+
 def add_arguments(p) -> None:
-    p.add_argument("run", metavar="RUN", help="run folder written by 'mcdenoise train'")
+    p.add_argument("run", metavar="RUN", help="run folder written by 'mcdenoise train', or an earlier "
+                   "export (FILE.onnx) to export again with the current graph code and its weights")
     p.add_argument("--out", required=True, metavar="FILE.onnx", help="ONNX file to write")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, >= 17 (default {DEFAULT_OPSET})")
 
 
 def main(args) -> int:
-    rep = export_run(args.run, args.out, args.opset)
+    rep = (reexport if Path(args.run).is_file() and args.run.endswith(".onnx") else export_run)(
+        args.run, args.out, args.opset)
     print(f"wrote {rep.path} (opset {rep.opset}, {rep.nodes} nodes, {rep.seconds:.1f} s); "
           f"onnxruntime vs torch (float64) at {rep.check_size[1]}x{rep.check_size[0]}: max relative error "
           f"{rep.max_parity_error:.2e} (torch float32: {max(rep.torch_float32.values()):.2e}; "

@@ -166,8 +166,16 @@ def test_flops_of_an_nbg_graph_with_data_dependent_grid_sizes(tmp_path):
     inits = {i.name: tuple(i.dims) for i in model.graph.initializer}
     convs = [n for n in model.graph.node if n.op_type == "Conv"]
     assert c.per_op["Conv"]["fmas"] == sum(h * w * int(np.prod(inits[n.input[1]])) for n in convs)
-    # one scatter-add update per pixel, corner and channel: 8 corners x 4 channels x 3 grids
-    assert c.per_op["ScatterElements"]["flops"] == h * w * 8 * 4 * 3
+    # the splat's block MatMuls: per grid, 4 spatial corners x (padded pixels) x D range cells
+    # x 4 channels (irradiance and the weight)
+    from mcdenoise.training.models.nbg import NBGParams, grid_shape
+    params = spec.params_as(NBGParams)
+    want = 0
+    for s in range(params.grids):
+        rates = params.scale_rates(s)
+        d, hg, wg = grid_shape(h, w, rates)
+        want += 4 * (hg - 1) * rates[0] * (wg - 1) * rates[1] * d * 4
+    assert c.per_op["MatMul"]["fmas"] == want and "ScatterElements" not in c.per_op
 
 
 def test_cuda_bench_says_clearly_when_there_is_no_cuda_provider(tmp_path, capsys):

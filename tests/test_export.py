@@ -12,7 +12,8 @@ import torch
 from onnx.reference import ReferenceEvaluator
 
 from mcdenoise.export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, FLOAT32_MARGIN, PARITY_TOL, ExportError,
-                                export_model, export_run, parity_error, parity_errors, parity_ok, unstaged_nodes)
+                                export_model, export_run, parity_error, parity_errors, parity_ok, reexport,
+                                unstaged_nodes)
 from mcdenoise.runtime import contract as C
 from mcdenoise.training import runs
 from mcdenoise.training.models import example_inputs
@@ -282,6 +283,34 @@ def test_export_run_rebuilds_from_the_run_folder_only(name, tmp_path):
     assert C.parse_contract(sess.get_modelmeta().custom_metadata_map).code_hash == "f" * 64
     feeds = example_inputs(model, 1, 21, 30, seed=9)
     _assert_parity(parity_errors(model, lambda f: sess.run(list(model.output_names), f), feeds))
+
+
+@pytest.mark.parametrize("name", ["nbg-2l-1g", "anf-s"])
+def test_reexport_carries_weights_and_code_hash(name, exported, tmp_path):
+    """An earlier export, exported again with the current graph code (how a graph change
+    reaches a shipped model whose run folder is gone): the same outputs, the same code hash,
+    and the same spec."""
+    spec, model, path, _ = exported[name]
+    reexport(path, tmp_path / "again.onnx")
+    old, new = _session(path), _session(tmp_path / "again.onnx")
+    meta = [C.parse_contract(s.get_modelmeta().custom_metadata_map) for s in (old, new)]
+    assert meta[0].code_hash == meta[1].code_hash and meta[0].spec_hash == meta[1].spec_hash
+    feeds = example_inputs(model, 1, 20, 28, seed=4)
+    for a, b in zip(old.run(None, feeds), new.run(None, feeds)):
+        np.testing.assert_allclose(b, a, rtol=1e-6, atol=1e-7)
+
+
+def test_reexport_refuses_a_file_whose_weights_were_folded(exported, tmp_path, capsys):
+    """WSKPN's deploy() folds its layers, so its export has no initializer per parameter: the
+    command says to re-export from the run folder, in one line."""
+    from mcdenoise.runtime.cli import main
+
+    _, _, path, _ = exported["wskpn-3"]
+    with pytest.raises(ExportError, match="re-export it from its run folder"):
+        reexport(path, tmp_path / "again.onnx")
+    assert main(["export", str(path), "--out", str(tmp_path / "again.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert "run folder" in err and "Traceback" not in err and not (tmp_path / "again.onnx").exists()
 
 
 def test_export_command(tmp_path, capsys):
