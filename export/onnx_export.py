@@ -179,7 +179,8 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
         state=tuple({"name": s.name, "channels": s.channels, "input": state_input_name(s.name),
                      "output": state_output_name(s.name)} for s in spec.state),
         history=HISTORY if spec.state else "",
-        accumulate=tuple({"layer": a.layer, "input": a.layer, "channels": _LAYER_CHANNELS[a.layer], "alpha": a.alpha}
+        accumulate=tuple({"layer": a.layer, "input": a.layer, "channels": _LAYER_CHANNELS[a.layer], "alpha": a.alpha,
+                          **({"history_spp": a.history_spp} if a.history_spp else {})}
                          for a in spec.accumulate),
         settings=tuple({"name": st.name, "input": st.name, "default": st.default, "min": st.min, "max": st.max,
                         "step": st.step} for st in spec.setting),

@@ -33,8 +33,9 @@ from typing import Any, Mapping
 
 #: Version of the metadata layout below; a reader refuses files with a newer one.  2 added
 #: :data:`KEY_ACCUMULATE` (a version-1 reader would feed the raw layer: silently wrong); 3 the
-#: per-sample input (:data:`SAMPLES_LAYOUT`) and :data:`KEY_SETTINGS`.
-FORMAT_VERSION = 3
+#: per-sample input (:data:`SAMPLES_LAYOUT`) and :data:`KEY_SETTINGS`; 4 an accumulation's
+#: optional ``history_spp`` (a version-3 reader would blend with the fixed alpha instead).
+FORMAT_VERSION = 4
 #: Every mcdenoise key starts with this.
 PREFIX = "mcdenoise."
 
@@ -97,8 +98,9 @@ class Contract:
     stages:  {"name", "node_prefix"} in execution order
     state:   {"name", "channels", "input" (graph input name), "output" (graph output name)}
     history: name of the history-mask input ("" when the model has no state)
-    accumulate: {"layer", "input" (graph input name), "channels", "alpha"}: inputs the driver
-             feeds as their temporal accumulation with current-frame weight ``alpha``
+    accumulate: {"layer", "input" (graph input name), "channels", "alpha"[, "history_spp"]}:
+             inputs the driver feeds as their temporal accumulation with current-frame weight
+             ``alpha``, or spp / (spp + history_spp) for a frame of known spp (format 4)
     settings: {"name", "input", "default", "min", "max", "step"}: int64 scalar inputs the driver
              feeds (a run-time knob such as ANF's kernel size)
     A per-sample input has layout "NSCHW", "kind": "samples" and "groups": [{"group",
@@ -238,6 +240,10 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
         if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha <= 1:
             raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: alpha of {a['layer']!r} must be in (0, 1], "
                              f"got {alpha!r}")
+        hs = a.get("history_spp", 0)
+        if isinstance(hs, bool) or not isinstance(hs, (int, float)) or not hs >= 0 or (hs and version < 4):
+            raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: history_spp of {a['layer']!r} must be a "
+                             f"number >= 0 (format 4 and later), got {hs!r} in format {version}")
     if len({a["input"] for a in accumulate}) != len(accumulate):
         raise ValueError(f"model metadata {KEY_ACCUMULATE!r}: an input is accumulated twice")
     settings = _check_list(KEY_SETTINGS, js(KEY_SETTINGS), ("name", "input", "default", "min", "max", "step")) \

@@ -116,7 +116,8 @@ class Denoiser:
     def load(cls, path: str | os.PathLike, providers=None, threads: int = 0,
              profile: bool = False, log=None, autoexposure: bool = True,
              driver_threads: int | None = None, prelude: str = "auto",
-             accumulate_alpha: float | None = None, settings: dict | None = None) -> "Denoiser":
+             accumulate_alpha: float | None = None, history_spp: float | None = None,
+             settings: dict | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -132,7 +133,10 @@ class Denoiser:
             256x256, 64 vs 179 ms at 1280x720 in a one-off run on a 2-vCPU EPYC), the graph on
             any other.
           accumulate_alpha: the current frame's weight for every accumulated input, in (0, 1],
-            instead of the file's (1: no accumulation); a run-time knob, the graph unchanged.
+            instead of the file's (1: no accumulation; the file's history_spp rule is dropped
+            unless ``history_spp`` is given too); a run-time knob, the graph unchanged.
+          history_spp: weigh a frame of known spp by spp / (spp + history_spp) instead of the
+            file's rule (0: the fixed alpha); see :meth:`runtime.temporal.Protocol.alpha`.
           settings: run-time settings to start with (name -> value, see :meth:`set`).
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
@@ -182,11 +186,15 @@ class Denoiser:
             graph = PreludeGraph(providers=sess.get_providers(), threads=threads)
         den = cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
                   driver_threads=driver_threads, prelude=graph)
-        if accumulate_alpha is not None:
-            if not 0 < accumulate_alpha <= 1:
-                raise ValueError(f"accumulate_alpha must be in (0, 1], got {accumulate_alpha}")
+        if accumulate_alpha is not None and not 0 < accumulate_alpha <= 1:
+            raise ValueError(f"accumulate_alpha must be in (0, 1], got {accumulate_alpha}")
+        if history_spp is not None and not history_spp >= 0:
+            raise ValueError(f"history_spp must be >= 0, got {history_spp}")
+        if accumulate_alpha is not None or history_spp is not None:
             den.protocol = replace(den.protocol, accumulate=tuple(
-                (layer, inp, float(accumulate_alpha)) for layer, inp, _ in den.protocol.accumulate))
+                (layer, inp, alpha if accumulate_alpha is None else float(accumulate_alpha),
+                 float(history_spp) if history_spp is not None else hs if accumulate_alpha is None else 0.0)
+                for layer, inp, alpha, hs in den.protocol.accumulate))
         for name, value in (settings or {}).items():
             den.set(name, value)
         return den
@@ -276,7 +284,7 @@ class Denoiser:
                 self._say(f"frame {self.report.frames}: sanitised input ({rep.summary()}); "
                           "further sanitising is counted in the report", once_key="sanitize:" + kinds)
         with tm.stage(timing.REPROJECT):
-            accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds)
+            accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds, fr.color_spp)
         with tm.stage(timing.GRAPH):
             named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
         with tm.stage(timing.POSTPROCESS):
@@ -334,11 +342,12 @@ class Denoiser:
             arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
         return arr
 
-    def _state_inputs(self, motion, guides, h: int, w: int, feeds: dict) -> dict[str, np.ndarray]:
+    def _state_inputs(self, motion, guides, h: int, w: int, feeds: dict, spp: int = 0) -> dict[str, np.ndarray]:
         """The protocol's feeds for this frame (:class:`runtime.temporal.Protocol`): a new
         history's zeros, or the kept one reprojected; returns the accumulations to keep.
         ``motion`` (1, 2, H, W) sanitised (non-finite -> 0) or None; ``feeds`` holds this
-        frame's (sanitised) inputs."""
+        frame's (sanitised) inputs; ``spp`` its samples per pixel (0: unknown), for an
+        accumulation weight that depends on it."""
         if not self.protocol.temporal:
             return {}
         if self._state is None:
@@ -348,7 +357,7 @@ class Denoiser:
             motion = np.zeros((1, 2, h, w), np.float32)
         kept = self.protocol.follow(feeds, self._state, motion, guides, self._guides,
                                     contiguous=lambda a: np.ascontiguousarray(a, dtype=np.float32),
-                                    reproject_fn=self.prelude, threads=self.driver_threads)
+                                    reproject_fn=self.prelude, threads=self.driver_threads, spp=spp)
         return kept
 
     # ------------------------------------------------------------------ timing

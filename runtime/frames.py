@@ -159,6 +159,15 @@ class Frame:
         """Samples per pixel stored per-sample (0 if none stored)."""
         return 0 if self.samples is None else int(self.samples.shape[0])
 
+    @property
+    def color_spp(self) -> int:
+        """Samples per pixel behind ``color``: the stored samples, else the metadata's ``spp``
+        (a renderer's own frames), else 0 (unknown)."""
+        if self.samples is not None:
+            return self.spp
+        n = (self.meta or {}).get("spp", 0)
+        return n if isinstance(n, int) and not isinstance(n, bool) and n > 0 else 0
+
     def layer(self, name: str) -> np.ndarray:
         """A pixel layer by name, or a :class:`FrameError` naming the frame and layer."""
         if name not in _LAYER_BY_NAME:

@@ -65,29 +65,51 @@ class Protocol:
     returned.
 
     state: (name, graph input, graph output, channels) per state tensor.
-    accumulate: (frame layer, graph input, alpha) per accumulated input (alpha: the current
-      frame's weight).
+    accumulate: (frame layer, graph input, alpha, history_spp) per accumulated input: the
+      current frame's weight is spp / (spp + history_spp) for a frame of known spp when
+      history_spp > 0 (the history counts as that many samples per pixel), else alpha
+      (:meth:`alpha`).
     history: the history-mask input ("" without state).
     """
 
     state: tuple[tuple[str, str, str, int], ...] = ()
-    accumulate: tuple[tuple[str, str, float], ...] = ()
+    accumulate: tuple[tuple[str, str, float, float], ...] = ()
     history: str = ""
 
     @classmethod
     def from_contract(cls, contract) -> "Protocol":
         """From a model file's :class:`runtime.contract.Contract`."""
         return cls(tuple((s["name"], s["input"], s["output"], int(s["channels"])) for s in contract.state),
-                   tuple((a["layer"], a["input"], float(a["alpha"])) for a in contract.accumulate),
+                   tuple((a["layer"], a["input"], float(a["alpha"]), float(a.get("history_spp", 0.0)))
+                         for a in contract.accumulate),
                    contract.history)
 
     @classmethod
     def from_spec(cls, state_channels: Mapping[str, int], accumulate=()) -> "Protocol":
-        """From a model spec's parts: {state name: channels} and (layer, alpha) pairs (a pixel
-        layer's graph input carries its name), with the contract's input and output names."""
+        """From a model spec's parts: {state name: channels} and (layer, alpha, history_spp)
+        per accumulated layer (its graph input carries its name), with the contract's input and
+        output names."""
         state = tuple((n, state_input_name(n), state_output_name(n), int(c)) for n, c in state_channels.items())
-        return cls(state, tuple((layer, layer, float(alpha)) for layer, alpha in accumulate),
+        return cls(state, tuple((layer, layer, float(alpha), float(hs)) for layer, alpha, hs in accumulate),
                    HISTORY if state else "")
+
+    @staticmethod
+    def alpha(entry: tuple, spp=None):
+        """The current frame's weight of one ``accumulate`` entry: spp / (spp + history_spp)
+        when the entry has a history_spp and ``spp`` is known (> 0), else its fixed alpha.
+
+        spp: None or 0 (unknown: a frame without per-sample data or an spp in its metadata),
+        an int, or per batch item a torch / numpy (N,) integer array, for which the weight is
+        (N, 1, 1, 1) (items of unknown spp get the fixed alpha)."""
+        _, _, alpha, history_spp = entry
+        if not history_spp or spp is None:
+            return alpha
+        if isinstance(spp, (int, np.integer)):
+            return float(spp) / (spp + history_spp) if spp > 0 else alpha
+        n = spp.reshape(-1, 1, 1, 1) * 1.0           # numpy or torch, no torch import here
+        if isinstance(n, np.ndarray):
+            n = n.astype(np.float32)
+        return alpha + (n > 0) * (n / (n + history_spp) - alpha)
 
     @property
     def temporal(self) -> bool:
@@ -114,20 +136,22 @@ class Protocol:
             feeds[inp] = _zeros(like, (n, ch, h, w))
         if self.state:
             feeds[self.history] = _zeros(like, (n, 1, h, w))
-        return {self.accum_key(inp): feeds[inp] for _, inp, _ in self.accumulate}
+        return {self.accum_key(inp): feeds[inp] for _, inp, _, _ in self.accumulate}
 
     def follow(self, feeds: dict, kept: dict, motion, cur: dict, prev: dict,
-               contiguous: Callable = lambda a: a, reproject_fn: Callable | None = None, **reproject_args) -> dict:
+               contiguous: Callable = lambda a: a, reproject_fn: Callable | None = None, spp=None,
+               **reproject_args) -> dict:
         """A frame that continues the history ``kept`` (from :meth:`update`): its state and
         accumulations reprojected along ``motion`` (N, 2, H, W) with the consistency test on
         the guides ``cur`` / ``prev`` (:func:`reproject`, which gets ``reproject_args``), put
         into ``feeds`` with the history mask; each accumulated input becomes its
         accumulation. ``contiguous`` prepares each array fed (the driver makes them
         contiguous float32); ``reproject_fn`` replaces :func:`reproject` with what computes the
-        same (the prelude graph, :class:`runtime.prelude.PreludeGraph`). Returns the
-        accumulations to keep."""
-        keys = [s[0] for s in self.state] + [self.accum_key(inp) for _, inp, _ in self.accumulate]
-        blend = [None] * len(self.state) + [(feeds[inp], alpha) for _, inp, alpha in self.accumulate]
+        same (the prelude graph, :class:`runtime.prelude.PreludeGraph`). ``spp``: this frame's
+        samples per pixel (per item of a batch; see :meth:`alpha`). Returns the accumulations
+        to keep."""
+        keys = [s[0] for s in self.state] + [self.accum_key(a[1]) for a in self.accumulate]
+        blend = [None] * len(self.state) + [(feeds[a[1]], self.alpha(a, spp)) for a in self.accumulate]
         warped, history = (reproject_fn or reproject)([kept[k] for k in keys], motion, cur, prev, blend=blend,
                                                       **reproject_args)
         for (_, inp, _, _), arr in zip(self.state, warped):
@@ -135,7 +159,7 @@ class Protocol:
         if self.state:
             feeds[self.history] = contiguous(history)
         out = {}
-        for (_, inp, _), arr in zip(self.accumulate, warped[len(self.state):]):
+        for (_, inp, _, _), arr in zip(self.accumulate, warped[len(self.state):]):
             feeds[inp] = out[self.accum_key(inp)] = contiguous(arr)
         return out
 

@@ -205,6 +205,14 @@ def test_parse_contract_checks_accumulate(exported):
         C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps(acc * 2)})
     with pytest.raises(ValueError, match=r"'mcdenoise.accumulate'\[0\]: missing field\(s\) \['alpha'\]"):
         C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps([{k: v for k, v in acc[0].items() if k != "alpha"}])})
+    # history_spp: a number >= 0, and only from format 4 on (a format-3 reader ignores it)
+    with_rule = json.dumps([{**acc[0], "history_spp": 1.0}])
+    assert C.parse_contract({**good, C.KEY_ACCUMULATE: with_rule}).accumulate[0]["history_spp"] == 1.0
+    for bad, version, pattern in [(-1, "4", "history_spp of 'color' must be a number >= 0"),
+                                  ("1", "4", "got '1'"), (1.0, "3", "in format 3")]:
+        with pytest.raises(ValueError, match=pattern):
+            C.parse_contract({**good, C.KEY_VERSION: version,
+                              C.KEY_ACCUMULATE: json.dumps([{**acc[0], "history_spp": bad}])})
     # A format-1 file (before accumulation existed) has no such key: nothing accumulated.
     old = {k: v for k, v in good.items() if k != C.KEY_ACCUMULATE}
     assert C.parse_contract({**old, C.KEY_VERSION: "1"}).accumulate == ()

@@ -620,3 +620,23 @@ def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_
     np.testing.assert_array_equal(*outs[0])        # and nothing before there is a history
     with pytest.raises(ValueError, match="accumulate_alpha"):
         Denoiser.load(path, log=lambda m: None, accumulate_alpha=0.0)
+
+
+def test_history_spp_weighs_each_frame_by_its_spp():
+    """history_spp = 1: a 1-spp frame is blended as with accumulate_alpha 0.5, a 3-spp frame
+    as with 0.75, to the bit; a frame whose spp is unknown (no samples, no spp in its
+    metadata) keeps the file's fixed weight (shipped wskpn-3: the driver accumulates its
+    colour)."""
+    path = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
+    for spp, alpha in ((1, 0.5), (3, 0.75)):
+        rule = Denoiser.load(path, log=lambda m: None, history_spp=1.0)
+        fixed = Denoiser.load(path, log=lambda m: None, accumulate_alpha=alpha)
+        for t in range(3):
+            np.testing.assert_array_equal(rule(_frame(t, 30, 44, spp=spp)), fixed(_frame(t, 30, 44, spp=spp)))
+    rule = Denoiser.load(path, log=lambda m: None, history_spp=1.0)
+    base = Denoiser.load(path, log=lambda m: None)
+    for t in range(3):
+        np.testing.assert_array_equal(rule(_frame(t, 30, 44, spp=0)), base(_frame(t, 30, 44, spp=0)))
+    assert _frame(0, spp=0).color_spp == 0 and _frame(0, spp=0, meta={"spp": 16}).color_spp == 16
+    with pytest.raises(ValueError, match="history_spp"):
+        Denoiser.load(path, log=lambda m: None, history_spp=-1.0)

@@ -148,6 +148,20 @@ def test_accumulate_is_validated():
         parse_spec('accumulate = "color"\n' + re.sub(r"\[\[accumulate\]\]\n.*\n.*\n", "", raw), "a.toml")
 
 
+def test_history_spp_is_validated_and_hashed_only_when_set():
+    """history_spp (the spp-aware weight) defaults to 0, the fixed alpha: older specs keep their
+    hash; set, it is part of the hash and of the protocol."""
+    spec = load_spec("wskpn-3")
+    block = '[[accumulate]]\nlayer = "color"\n'
+    assert spec.accumulate[0].history_spp == 0.0
+    assert spec_hash(parse_spec(spec.raw.replace(block, block + "history_spp = 0.0\n"), "a.toml")) == spec_hash(spec)
+    rule = parse_spec(spec.raw.replace(block, block + "history_spp = 1.0\n"), "a.toml")
+    assert rule.accumulate[0].history_spp == 1.0 and spec_hash(rule) != spec_hash(spec)
+    assert rule.protocol.accumulate == (("color", "color", 0.2, 1.0),)
+    with pytest.raises(SpecError, match=r"\[\[accumulate\]\] #0: history_spp: .* >= 0"):
+        parse_spec(spec.raw.replace(block, block + "history_spp = -1.0\n"), "a.toml")
+
+
 @pytest.mark.parametrize("name", SPECS)
 def test_paper_table_is_checked(name):
     spec = load_spec(name)

@@ -282,3 +282,41 @@ def test_shipped_files_and_their_specs_declare_the_same_protocol():
         den = Denoiser.load(path, log=lambda m: None)
         assert den.protocol == parse_spec(den.contract.spec_toml).protocol, path
         assert den.protocol.temporal
+
+
+def test_accumulation_weight_follows_the_frames_spp():
+    """history_spp = k: a frame of n samples per pixel gets weight n / (n + k); a frame of
+    unknown spp (0 or None) and an entry without k get the fixed alpha; per batch item for
+    numpy and torch alike."""
+    from mcdenoise.runtime.temporal import Protocol
+
+    entry = ("color", "color", 0.2, 1.0)
+    assert Protocol.alpha(entry, 1) == 0.5 and Protocol.alpha(entry, 3) == 0.75
+    assert Protocol.alpha(entry, np.int64(4)) == 0.8
+    assert Protocol.alpha(entry, 0) == 0.2 and Protocol.alpha(entry, None) == 0.2
+    assert Protocol.alpha(("color", "color", 0.2, 0.0), 8) == 0.2
+    for lib in (np.array, torch.tensor):
+        w = Protocol.alpha(entry, lib([1, 3, 0]))
+        assert tuple(w.shape) == (3, 1, 1, 1)
+        np.testing.assert_allclose(np.asarray(w, dtype=np.float64).reshape(-1), [0.5, 0.75, 0.2], rtol=1e-6)
+
+
+def test_a_batch_blends_each_item_with_its_own_spp():
+    """The trainer's batches mix spp: follow(spp=(N,)) blends every item with its own weight,
+    as the driver blends a frame of that spp alone."""
+    from mcdenoise.runtime.temporal import Protocol
+
+    proto = Protocol((), (("color", "color", 0.2, 2.0),), "")
+    motion, cur, prev = _scene(h=6, w=8, shift=0.5)
+    two = lambda a: torch.from_numpy(np.concatenate([a, a]))  # noqa: E731
+    rng = np.random.default_rng(0)
+    current = torch.from_numpy(rng.random((2, 3, 6, 8), dtype=np.float32))
+    state = torch.from_numpy(rng.random((2, 3, 6, 8), dtype=np.float32))
+    feeds = {"color": current}
+    proto.follow(feeds, {proto.accum_key("color"): state}, two(motion), {k: two(v) for k, v in cur.items()},
+                 {k: two(v) for k, v in prev.items()}, spp=torch.tensor([1, 6]))
+    for i, n in enumerate((1, 6)):
+        alone = {"color": current[i:i + 1].numpy()}
+        proto.follow(alone, {proto.accum_key("color"): state[i:i + 1].numpy()}, motion, cur, prev, spp=n)
+        np.testing.assert_allclose(feeds["color"][i:i + 1].numpy(), alone["color"], rtol=1e-6, atol=1e-6)
+    assert not np.allclose(feeds["color"][0].numpy(), feeds["color"][1].numpy())

@@ -30,19 +30,22 @@ def default_methods(models: list[str], oidn: bool = True) -> list[str]:
 
 
 def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, threads: int = 0,
-             stills: bool = False, log=print, warmup: int = 0, accumulate_alpha: float | None = None) -> dict:
+             stills: bool = False, log=print, warmup: int = 0, accumulate_alpha: float | None = None,
+             history_spp: float | None = None) -> dict:
     """{method: {psnr, ssim, flip, smape, relmse, trmae, wte, frames[, after_warmup]}} over every
     sequence in ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names;
     ``noisy`` and (with ``oidn``) ``oidn-high`` are always added. ``warmup``: also score the
-    frames after the first ``warmup`` of each sequence; ``accumulate_alpha``: every model's
-    accumulation weight instead of its file's."""
+    frames after the first ``warmup`` of each sequence; ``accumulate_alpha`` / ``history_spp``:
+    every model's accumulation weight instead of its file's (see ``Denoiser.load``)."""
     sources = default_methods(models, oidn)
-    methods = [load_method(n, threads=threads, accumulate_alpha=accumulate_alpha) for n in sources]
+    methods = [load_method(n, threads=threads, accumulate_alpha=accumulate_alpha, history_spp=history_spp)
+               for n in sources]
     check_distinct({n: m.name for n, m in zip(sources, methods)})
     seqs = read_sequences(data, stills)
     results = run_methods(methods, seqs, spp, log=log, warmup=warmup)
     results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
-                         "stills": bool(stills), "warmup": warmup, "accumulate_alpha": accumulate_alpha}
+                         "stills": bool(stills), "warmup": warmup, "accumulate_alpha": accumulate_alpha,
+                         "history_spp": history_spp}
     log(format_results(results))
     return results
 
@@ -80,6 +83,8 @@ def add_arguments(p):
                    help="also score the frames after the first N of each sequence (a history in full swing)")
     p.add_argument("--alpha", type=float, default=None,
                    help="every model's accumulation weight of the current frame, in (0, 1], instead of its file's")
+    p.add_argument("--history-spp", type=float, default=None, metavar="K",
+                   help="every model's accumulation weight spp / (spp + K) instead of its file's (0: the fixed weight)")
     p.add_argument("--json", default=None, help="write the results as JSON here")
     add_threads(p)
 
@@ -88,7 +93,7 @@ def main(args) -> int:
     if args.warmup < 0:
         raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
     res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads, args.stills,
-                   warmup=args.warmup, accumulate_alpha=args.alpha)
+                   warmup=args.warmup, accumulate_alpha=args.alpha, history_spp=args.history_spp)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0

@@ -94,11 +94,12 @@ class ONNXModel:
     """An mcdenoise ONNX file run by the runtime driver (temporal state included)."""
 
     def __init__(self, path: str, threads: int = 0, providers=None, profile: bool = False, log=None,
-                 accumulate_alpha: float | None = None):
+                 accumulate_alpha: float | None = None, history_spp: float | None = None):
         from mcdenoise.runtime.denoiser import Denoiser
 
         self.denoiser = Denoiser.load(path, providers=providers, threads=threads, profile=profile,
-                                      log=log or (lambda m: None), accumulate_alpha=accumulate_alpha)
+                                      log=log or (lambda m: None), accumulate_alpha=accumulate_alpha,
+                                      history_spp=history_spp)
         self.path = str(path)
         self.name = self.denoiser.contract.spec_name
 
@@ -132,19 +133,20 @@ PROVIDERS = {"cpu": ["CPUExecutionProvider"], "cuda": ["CUDAExecutionProvider", 
 
 
 def load_method(name: str, threads: int = 0, providers=None, profile: bool = False, log=None,
-                device: str = "cpu", accumulate_alpha: float | None = None):
+                device: str = "cpu", accumulate_alpha: float | None = None, history_spp: float | None = None):
     """A method object for ``name``: an ``.onnx`` path or one of :data:`BUILTIN`.
 
     ``device`` ("cpu" or "cuda") picks onnxruntime's execution provider (unless ``providers``
     is given); Open Image Denoise, SVGF and the noisy input run on the CPU here (pyoidn's CUDA
     device needs torch tensors: ``training.bench`` wraps it, keeping this module torch-free).
-    ``accumulate_alpha`` overrides a model file's accumulation weight (runtime.denoiser).
+    ``accumulate_alpha`` and ``history_spp`` override a model file's accumulation weight
+    (:meth:`runtime.denoiser.Denoiser.load`).
     """
     if device not in PROVIDERS:
         raise ValueError(f"device must be one of {', '.join(PROVIDERS)}, got {device!r}")
     if name.endswith(".onnx") or os.path.sep in name:
         return ONNXModel(name, threads=threads, providers=providers or PROVIDERS[device], profile=profile, log=log,
-                         accumulate_alpha=accumulate_alpha)
+                         accumulate_alpha=accumulate_alpha, history_spp=history_spp)
     if name == "noisy":
         return Noisy()
     if name.startswith("oidn-"):

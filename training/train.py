@@ -112,7 +112,7 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
         if kept is None:
             acc = protocol.start(feeds, feeds["color"])
         else:
-            acc = protocol.follow(feeds, kept, feeds["motion"], guides, prev_guides)
+            acc = protocol.follow(feeds, kept, feeds["motion"], guides, prev_guides, spp=batch.get("spp"))
         missing = [n for n in model.input_names if n not in feeds]
         if missing:
             raise KeyError(f"model input(s) {missing} not in the batch ({sorted(feeds)})")
