@@ -165,8 +165,8 @@ def test_contract_round_trips(name, exported):
         [(s.name, s.channels, f"prev_{s.name}", f"next_{s.name}") for s in spec.state]
     assert con.history == ("history" if spec.state else "")
     channels = {i["name"]: i["channels"] for i in con.inputs}
-    assert [(a["layer"], a["input"], a["channels"], a["alpha"]) for a in con.accumulate] == \
-        [(a.layer, a.layer, channels[a.layer], a.alpha) for a in spec.accumulate]
+    assert [(a["layer"], a["input"], a["channels"], a["alpha"], a.get("history_spp", 0.0)) for a in con.accumulate] == \
+        [(a.layer, a.layer, channels[a.layer], a.alpha, a.history_spp) for a in spec.accumulate]
     assert con.temporal == bool(spec.state or spec.accumulate)
     assert con.paper == dict(spec.paper)
     assert con.export["opset"] >= 17 and con.export["parity_max_rel_error"] == report.max_parity_error
@@ -194,7 +194,8 @@ def test_parse_contract_errors(exported):
 def test_parse_contract_checks_accumulate(exported):
     good = _session(exported["wskpn-3"][2]).get_modelmeta().custom_metadata_map
     acc = json.loads(good[C.KEY_ACCUMULATE])
-    assert acc == [{"layer": "color", "input": "color", "channels": 3, "alpha": 0.2}]
+    assert acc == [{"layer": "color", "input": "color", "channels": 3, "alpha": 0.2, "history_spp": 1.0}]
+    assert C.parse_contract(good).version == 4
     for change, pattern in [({"input": "colour"}, "does not match the graph's inputs"),
                             ({"channels": 1}, "does not match the graph's inputs"),
                             ({"alpha": 0}, r"alpha of 'color' must be in \(0, 1\], got 0"),
@@ -206,8 +207,8 @@ def test_parse_contract_checks_accumulate(exported):
     with pytest.raises(ValueError, match=r"'mcdenoise.accumulate'\[0\]: missing field\(s\) \['alpha'\]"):
         C.parse_contract({**good, C.KEY_ACCUMULATE: json.dumps([{k: v for k, v in acc[0].items() if k != "alpha"}])})
     # history_spp: a number >= 0, and only from format 4 on (a format-3 reader ignores it)
-    with_rule = json.dumps([{**acc[0], "history_spp": 1.0}])
-    assert C.parse_contract({**good, C.KEY_ACCUMULATE: with_rule}).accumulate[0]["history_spp"] == 1.0
+    fixed = json.dumps([{k: v for k, v in acc[0].items() if k != "history_spp"}])
+    assert "history_spp" not in C.parse_contract({**good, C.KEY_VERSION: "3", C.KEY_ACCUMULATE: fixed}).accumulate[0]
     for bad, version, pattern in [(-1, "4", "history_spp of 'color' must be a number >= 0"),
                                   ("1", "4", "got '1'"), (1.0, "3", "in format 3")]:
         with pytest.raises(ValueError, match=pattern):

@@ -2,6 +2,8 @@
 accumulation, gradients, robustness to extreme importance values."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -14,17 +16,14 @@ from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT
 from mcdenoise.training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
 
 WSKPN_SPECS = [n for n in list_specs() if load_spec(n).type == "wskpn"]
-_ACCUMULATE = """[[accumulate]]
-layer = "color"
-alpha = 0.2          # the current frame's weight
-"""
+_ACCUMULATE = re.compile(r'\[\[accumulate\]\]\nlayer = "color"\n(?:(?:alpha|history_spp) = .*\n)+')
 
 
 def _in_graph_temporal(raw: str) -> str:
     """A shipped spec (colour accumulated by the driver, [[accumulate]]) rewritten to accumulate
     in the graph instead: a leading "temporal" stage and the [[state]] accum (the option NBG uses)."""
-    assert _ACCUMULATE in raw and 'stages = ["prediction", "reconstruction"]' in raw
-    return (raw.replace(_ACCUMULATE, '[[state]]\nname = "accum"\nchannels = 3\n')
+    assert _ACCUMULATE.search(raw) and 'stages = ["prediction", "reconstruction"]' in raw
+    return (_ACCUMULATE.sub('[[state]]\nname = "accum"\nchannels = 3\n', raw)
             .replace('stages = ["prediction", "reconstruction"]', 'stages = ["temporal", "prediction", "reconstruction"]'))
 
 
@@ -362,3 +361,29 @@ def test_model_with_exploding_head_stays_finite(name):
                 m.branch5.conv.weight.mul_(1e6)
         outs = model(*_tensors(model, 1, 16, 16))
     assert all(torch.isfinite(o).all() for o in outs)
+
+
+def test_training_gradients_stay_finite_where_the_weights_span_their_whole_range():
+    """Importance weights at exp(−LOGIT_BOUND) around one at exp(+LOGIT_BOUND), fusion factors at
+    exp(+LOGIT_BOUND): the backward of a / boxmean(w) reaches 1e53. In float32 (the inference
+    form, here in eval mode) that is inf − inf = NaN in the gradient; the training form fuses in
+    float64 and gives finite gradients, and the same forward values."""
+    from mcdenoise.training.models.wskpn import LOGIT_BOUND, ReconstructionStage, WSKPNParams
+
+    params = load_spec("wskpn-6").params_as(WSKPNParams)
+    m = len(params.kernel_sizes)
+    g = torch.Generator().manual_seed(0)
+    accum, albedo = torch.rand(1, 3, 24, 24, generator=g) * 50, torch.rand(1, 3, 24, 24, generator=g)
+    pred = torch.full((1, 2 * m, 24, 24), LOGIT_BOUND)
+    pred[:, :m] = -LOGIT_BOUND
+    pred[:, :m, 12, 12] = LOGIT_BOUND
+    upstream = torch.rand(1, 3, 24, 24, generator=g)
+    out = {}
+    for training in (True, False):
+        p = pred.clone().requires_grad_(True)
+        stage = ReconstructionStage(params).train(training)
+        out[training] = stage(accum, albedo, [p])
+        (out[training] * upstream).sum().backward()
+        assert torch.isfinite(p.grad).all() == training
+    assert out[True].dtype == torch.float32
+    torch.testing.assert_close(out[True], out[False], rtol=1e-5, atol=1e-5)

@@ -450,13 +450,23 @@ class ReconstructionStage(nn.Module):
         if self.multiple > 1:
             x = pad_to_multiple(x, self.multiple)
         filtered = []
+        # Training runs the boxsum fusion in float64: its weights span exp(±LOGIT_BOUND), and
+        # the backward of a / boxmean(w) holds a / boxmean(w)², up to 1e53, where float32 ends at
+        # 3e38. The true gradient is finite (the next factor is ~boxmean(w)), but float32 gave
+        # inf − inf = NaN: wskpn-6 diverged at step 2 of an 8-frame-window run. Inference and
+        # the export stay float32 (forward values are bounded, see LOGIT_BOUND).
+        wide = self.training and x.dtype == torch.float32 and self.kernel_path == "boxsum"
+        if wide:
+            x = x.double()
         for l, p in enumerate(preds):
             if l > 0:
                 x = downsample2(x)
             if self.kernel_path == "boxsum":
                 # The coarsest level has no blend channel: no slice (a copy in onnxruntime).
+                p = p.double() if wide else p
                 weights, factors = kernel_exponentials(p if l == len(preds) - 1 else p[:, :2 * m], m)
-                filtered.append(fuse_boxsum(x, weights, factors, self.kernel_sizes))
+                f = fuse_boxsum(x, weights, factors, self.kernel_sizes)
+                filtered.append(f.float() if wide else f)
             else:
                 filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, "unfold"))
         out = filtered[-1]
