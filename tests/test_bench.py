@@ -72,6 +72,23 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
     assert {r["model"] for r in stages} == set(methods)
     flops = _rows(out / "bench_flops.csv")
     assert {r["method"] for r in flops} >= set(models)
+    # peak memory, each method in its own process
+    mem = md[md.index("## Peak memory at 64x64"):]
+    for m in methods:
+        assert f"| {m} | " in mem, m
+
+
+def test_peak_memory_grows_with_the_frame_and_failures_say_why():
+    """The fresh-process peak sees onnxruntime's own allocations: a 256x256 frame through
+    wskpn-3 adds more than a 32x32 one (by much more than the 64x more pixels' input, which is
+    built before the peak is taken)."""
+    from mcdenoise.training.memory import peak_memory
+
+    path = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
+    small, big = peak_memory(path, 32, 32, frames=2), peak_memory(path, 256, 256, frames=2)
+    assert big["added_mb"] > small["added_mb"] + 5 and big["peak_mb"] >= big["base_mb"] > 0
+    with pytest.raises(RuntimeError, match="no-such.onnx: no such model file"):
+        peak_memory("no-such.onnx", 32, 32)
 
 
 def test_pareto_front():

@@ -82,7 +82,8 @@ def _model_paths(models) -> list[str]:
 
 def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHART_SIZE, frames=5,
         warmup=2, threads=0, torch_too=True, quality=True, stills=None, data=None, quick=False,
-        seed=0, out="docs/results", command="mcdenoise bench", log=print, device="cpu", long=True) -> dict:
+        seed=0, out="docs/results", command="mcdenoise bench", log=print, device="cpu", long=True,
+        memory=True) -> dict:
     """Run the benchmark and write every output file; returns the collected results.
 
     ``models``: ONNX files (default: the shipped ones).  ``builtins``: built-in methods.
@@ -112,6 +113,9 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     # --- timing
     res["stage_rows"], res["frame_ms"] = timing_part(models, builtins, sizes, frames, warmup, threads,
                                                      torch_too, seed, log, device)
+    # --- memory (CPU: a fresh process per method)
+    if memory and device == "cpu":
+        res["memory"] = memory_part(models, builtins, max(sizes, key=lambda s: s[0] * s[1]), threads, log)
     # --- compute
     res["flops"] = flops_part(names, sizes, log, device)
     res["seconds"] = time.perf_counter() - t_start
@@ -174,6 +178,8 @@ def quality_part(models, builtins, stills, data, quick, threads, log, long=True)
 
 #: Samples per pixel of the timing frames when a per-sample model is timed (ANF Table 1: 4 spp).
 TIMING_SPP = 4
+#: Frames each method denoises for its peak memory (the history is in use from the second on).
+MEMORY_FRAMES = 3
 
 
 def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, seed, log, device="cpu"):
@@ -226,6 +232,25 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
     return rows, frame_ms
 
 
+def memory_part(models, builtins, size, threads, log) -> dict:
+    """Peak resident memory of every method on the same synthetic frames at ``size``, each in a
+    fresh process (:func:`training.memory.peak_memory`); per-sample models get
+    :data:`TIMING_SPP` samples per pixel and then every method gets the same frames.  Returns
+    {"size": "WxH", "spp": S, "frames": n, "methods": {name: {base_mb, peak_mb, added_mb}}}."""
+    from mcdenoise.runtime.denoiser import Denoiser
+    from mcdenoise.training.memory import peak_memory
+
+    names = {p: Denoiser.load(p, log=lambda m: None) for p in models}
+    spp = TIMING_SPP if any(d.contract.samples_input for d in names.values()) else 0
+    w, h = size
+    out = {"size": f"{w}x{h}", "spp": spp, "frames": MEMORY_FRAMES, "methods": {}}
+    for source, name in [(p, d.contract.spec_name) for p, d in names.items()] + [(b, b) for b in builtins]:
+        out["methods"][name] = peak_memory(source, w, h, frames=MEMORY_FRAMES, spp=spp, threads=threads)
+        log(f"{name} {w}x{h}: peak {out['methods'][name]['peak_mb']:.0f} MB, "
+            f"{out['methods'][name]['added_mb']:.0f} MB added by denoising")
+    return out
+
+
 def flops_part(names: dict, sizes, log, device="cpu"):
     """FLOP counts of every model (``names``: path -> spec name) at each size and 1280x720,
     Open Image Denoise's published U-Net, and this CPU's peak."""
@@ -276,6 +301,7 @@ def add_arguments(p):
     p.add_argument("--no-torch", action="store_true", help="skip torch eager timings")
     p.add_argument("--no-oidn", action="store_true", help="skip Open Image Denoise")
     p.add_argument("--no-quality", action="store_true", help="timing and FLOPs only")
+    p.add_argument("--no-memory", action="store_true", help="skip the peak memory of every method")
     p.add_argument("--no-long", action="store_true",
                    help="leave out the long sequences (24 frames at 256x256 with a slow, medium and fast camera; "
                         "rendering them the first time takes hours on 2 cores)")
@@ -305,6 +331,6 @@ def main(args) -> int:
         frames=args.frames or (3 if q else 5), warmup=args.warmup if args.warmup is not None else (1 if q else 2),
         threads=args.threads, torch_too=not (args.no_torch or q), quality=not (args.no_quality or cuda),
         stills=args.stills, data=args.data, quick=q, seed=args.seed, out=out, command=command_line("bench", args),
-        device=args.device, long=not args.no_long)
+        device=args.device, long=not args.no_long, memory=not args.no_memory)
     print(f"wrote {out}/bench.md, bench.csv, bench_quality.csv, bench_flops.csv and the charts")
     return 0

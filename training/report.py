@@ -403,6 +403,16 @@ def bench_markdown(res) -> str:
                 ratios.append(f"- {name} at {s}: {ms:.1f} ms = {ms / o:.2f}x Open Image Denoise high ({o:.1f} ms)")
     if ratios:
         L += ["", "Against Open Image Denoise (quality high, same run):", ""] + ratios
+    mem = res.get("memory")
+    if mem:
+        samples = f" with {mem['spp']} samples per pixel" if mem["spp"] else ""
+        L += ["", f"## Peak memory at {mem['size']}", "",
+              f"Each method alone in a fresh process (`python -m mcdenoise.training.memory`), {mem['frames']} "
+              f"frames{samples}: the process's peak resident set, and what denoising added to the peak "
+              "once the frames were built and the method loaded.", "",
+              "| method | peak MB | added by denoising MB |", "|---|---:|---:|"]
+        for m, v in mem["methods"].items():
+            L.append(f"| {m} | {v['peak_mb']:.0f} | {v['added_mb']:.0f} |")
     return "\n".join(L) + "\n"
 
 
