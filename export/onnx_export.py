@@ -369,15 +369,68 @@ def reexport(src: str | os.PathLike, out_path: str | os.PathLike, opset: int = D
     return export_model(spec, model, out_path, opset, code_hash=contract.code_hash)
 
 
+def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_path: str | os.PathLike) -> Contract:
+    """Write the export ``src`` to ``out_path`` with the accumulation weights (``alpha``,
+    ``history_spp``) of the spec at ``spec_path``, graph and weights untouched: a run-time
+    rule of the driver, not of the graph. The spec must equal the file's embedded spec in
+    everything else (name, params, inputs, stages, state, training; comments aside), so the
+    contract never describes a graph the file does not hold. The export info records it.
+
+    Raises ExportError naming what differs."""
+    import onnx
+
+    from mcdenoise.training.specs import build_model, load_spec, parse_spec
+
+    proto = onnx.load(str(src))
+    old = parse_contract({p.key: p.value for p in proto.metadata_props})
+    was, new = parse_spec(old.spec_toml, f"{src} (embedded spec)"), load_spec(spec_path)
+
+    def rest(spec) -> dict:
+        d = spec.to_dict()
+        d.pop("description")
+        d["accumulate"] = [a["layer"] for a in d["accumulate"]]
+        return d
+
+    a, b = rest(was), rest(new)
+    if a != b:
+        keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+        raise ExportError(f"{spec_path}: differs from {src}'s spec in {keys}, not only in its accumulation "
+                          "weights; export the model again from its run folder instead")
+    changed = {a.layer: {"alpha": a.alpha, "history_spp": a.history_spp} for a in new.accumulate}
+    info = {**old.export, "protocol_from": {"spec": Path(spec_path).name, "accumulate": changed,
+                                            "trained_with": [{"layer": a.layer, "alpha": a.alpha,
+                                                              "history_spp": a.history_spp} for a in was.accumulate]}}
+    contract = build_contract(new, build_model(new), old.code_hash, info)
+    del proto.metadata_props[:]
+    for k, v in contract_metadata(contract).items():
+        proto.metadata_props.add(key=k, value=v)
+    out_path = Path(out_path)
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    onnx.save(proto, str(tmp))
+    os.replace(tmp, out_path)
+    return contract
+
+
 def add_arguments(p) -> None:
     p.add_argument("run", metavar="RUN", help="run folder written by 'mcdenoise train', or an earlier "
                    "export (FILE.onnx) to export again with the current graph code and its weights")
     p.add_argument("--out", required=True, metavar="FILE.onnx", help="ONNX file to write")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, >= 17 (default {DEFAULT_OPSET})")
+    p.add_argument("--protocol-from", default=None, metavar="SPEC",
+                   help="with an earlier export as RUN: only take the accumulation weights of SPEC (a spec "
+                   "otherwise equal to the file's), graph and weights untouched")
 
 
 def main(args) -> int:
+    if args.protocol_from:
+        if not args.run.endswith(".onnx"):
+            raise CommandError("--protocol-from takes an earlier export (FILE.onnx) as RUN")
+        c = adopt_protocol(args.run, args.out, args.protocol_from)
+        weights = ", ".join(f"{a['layer']} alpha {a['alpha']:g} history_spp {a.get('history_spp', 0):g}"
+                            for a in c.accumulate)
+        print(f"wrote {args.out}: {args.run} with the accumulation of {args.protocol_from} ({weights})")
+        return 0
     rep = (reexport if Path(args.run).is_file() and args.run.endswith(".onnx") else export_run)(
         args.run, args.out, args.opset)
     print(f"wrote {rep.path} (opset {rep.opset}, {rep.nodes} nodes, {rep.seconds:.1f} s); "

@@ -12,7 +12,7 @@ import torch
 from onnx.reference import ReferenceEvaluator
 
 from mcdenoise.export.onnx_export import (CHECK_SIZE, DARK_FRACTION, EXPORT_SIZE, FLOAT32_MARGIN, PARITY_TOL, ExportError,
-                                export_model, export_run, parity_error, parity_errors, parity_ok, reexport,
+                                adopt_protocol, export_model, export_run, parity_error, parity_errors, parity_ok, reexport,
                                 unstaged_nodes)
 from mcdenoise.runtime import contract as C
 from mcdenoise.training import runs
@@ -320,6 +320,29 @@ def test_reexport_refuses_a_file_whose_weights_were_folded(exported, tmp_path, c
     assert main(["export", str(path), "--out", str(tmp_path / "again.onnx")]) == 2
     err = capsys.readouterr().err
     assert "run folder" in err and "Traceback" not in err and not (tmp_path / "again.onnx").exists()
+
+
+def test_adopt_protocol_changes_only_the_accumulation_weights(exported, tmp_path, capsys):
+    """A shipped file takes a spec's accumulation weights without a new graph: the graph and
+    weights are byte-equal, the contract's accumulation and spec change, the export info
+    says what it was trained with; a spec that differs in anything else is refused."""
+    import re
+
+    from mcdenoise.runtime.cli import main
+
+    spec, _, path, _ = exported["wskpn-3"]
+    fixed = tmp_path / "wskpn-3.toml"
+    fixed.write_text(re.sub(r"(?m)^history_spp = .*\n", "", spec.raw).replace("alpha = 0.2", "alpha = 0.5"))
+    con = adopt_protocol(path, tmp_path / "a.onnx", fixed)
+    assert [(a["alpha"], "history_spp" in a) for a in con.accumulate] == [(0.5, False)]
+    assert con.export["protocol_from"]["trained_with"] == [{"layer": "color", "alpha": 0.2, "history_spp": 1.0}]
+    before, after = onnx.load(str(path)), onnx.load(str(tmp_path / "a.onnx"))
+    assert before.graph.SerializeToString() == after.graph.SerializeToString()
+    assert C.parse_contract({p.key: p.value for p in after.metadata_props}).spec_toml == fixed.read_text()
+    with pytest.raises(ExportError, match=r"differs from .* in \['name', 'paper', 'params'\]"):
+        adopt_protocol(path, tmp_path / "b.onnx", load_spec("wskpn-6").path)
+    assert main(["export", str(path), "--out", str(tmp_path / "c.onnx"), "--protocol-from", str(fixed)]) == 0
+    assert "alpha 0.5" in capsys.readouterr().out
 
 
 def test_export_command(tmp_path, capsys):
