@@ -58,7 +58,8 @@ def test_denoise_shapes_and_state(model_file):
 
 
 def test_driver_matches_training_unroll(model_file):
-    """Same two frames through the runtime driver and through training.train.run_window."""
+    """Same two frames through the runtime driver and through training.train.run_window (the
+    batch's spp, as the dataset gives it: the accumulation weight depends on it)."""
     from mcdenoise.training.train import run_window
 
     path, spec, model = model_file
@@ -72,6 +73,7 @@ def test_driver_matches_training_unroll(model_file):
         for k, v in arrays.items():
             batch.setdefault(k, []).append(torch.from_numpy(v))
     batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}  # (1, T, C, H, W)
+    batch["spp"] = torch.tensor([frames[0].color_spp])
     with torch.no_grad():
         ref = run_window(model, batch, spec.protocol)
     for t in range(2):
