@@ -37,7 +37,8 @@ import numpy as np
 
 from mcdenoise.runtime.args import CommandError
 from mcdenoise.runtime.contract import (FORMAT_VERSION, HISTORY, LAYOUT, SAMPLES_INPUT, SAMPLES_LAYOUT, Contract,
-                              contract_metadata, node_prefix, parse_contract, state_input_name, state_output_name)
+                              contract_metadata, node_prefix, parse_contract, state_input_name, state_output_name,
+                              state_weight_name)
 from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.frames import PIXEL_LAYERS
 
@@ -149,6 +150,7 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
 
     layers = set(spec.inputs.layers)
     state_in = {state_input_name(s.name): s for s in spec.state}
+    weights = {state_weight_name(s.name) for s in spec.state if s.alpha}
     inputs = []
     for name in model.input_names:
         if name in layers:
@@ -159,6 +161,9 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
                            "layout": LAYOUT, "transfer": "linear"})
         elif name == HISTORY:
             inputs.append({"name": name, "layer": None, "channels": 1, "layout": LAYOUT, "transfer": "linear"})
+        elif name in weights:
+            inputs.append({"name": name, "layer": None, "kind": "weight", "channels": 1, "layout": LAYOUT,
+                           "transfer": "linear"})
         elif name == SAMPLES_INPUT:
             groups = [{"group": g, "channels": sample_group_channels(g), "transfer": t}
                       for g, t in spec.inputs.sample_groups]
@@ -177,7 +182,9 @@ def build_contract(spec, model, code_hash: str, export_info: dict | None = None)
         spec_hash=spec_hash(spec), code_hash=code_hash, inputs=tuple(inputs), outputs=tuple(outputs),
         stages=tuple(_stage_entry(model, s) for s in spec.stages),
         state=tuple({"name": s.name, "channels": s.channels, "input": state_input_name(s.name),
-                     "output": state_output_name(s.name)} for s in spec.state),
+                     "output": state_output_name(s.name),
+                     **({"weight_input": state_weight_name(s.name), "alpha": s.alpha, "history_spp": s.history_spp}
+                        if s.alpha else {})} for s in spec.state),
         history=HISTORY if spec.state else "",
         accumulate=tuple({"layer": a.layer, "input": a.layer, "channels": _LAYER_CHANNELS[a.layer], "alpha": a.alpha,
                           **({"history_spp": a.history_spp} if a.history_spp else {})}
@@ -222,7 +229,7 @@ def parity_ok(errors: dict[str, tuple[float, float]], tol: float = PARITY_TOL) -
 def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET, *,
                  code_hash: str | None = None, export_size: tuple[int, int] = EXPORT_SIZE,
                  check_size: tuple[int, int] = CHECK_SIZE, seed: int = 0,
-                 tol: float = PARITY_TOL) -> ExportReport:
+                 tol: float = PARITY_TOL, info: dict | None = None) -> ExportReport:
     """Export ``model`` (built from ``spec``; trained or not) to ``out_path`` and check it
     (see the module docstring).  ``code_hash`` defaults to the current source tree's.  The
     model is evaluated in eval mode and handed back in the mode it came in.
@@ -248,7 +255,9 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
     feeds = example_inputs(deployed, 1, *export_size, seed=seed, spp=EXPORT_SPP)
     args = tuple(torch.from_numpy(feeds[n]) for n in deployed.input_names)
     settings = set(getattr(deployed, "settings", {}))
-    axes = {n: {0: "N", 2: "H", 3: "W"} for n in (*deployed.input_names, *deployed.output_names) if n not in settings}
+    weights = set(getattr(deployed, "state_weights", {}))       # (N, 1, 1, 1): only N varies
+    axes = {n: {0: "N"} if n in weights else {0: "N", 2: "H", 3: "W"}
+            for n in (*deployed.input_names, *deployed.output_names) if n not in settings}
     if SAMPLES_INPUT in axes:
         axes[SAMPLES_INPUT] = {0: "N", 1: "S", 3: "H", 4: "W"}
     try:
@@ -296,7 +305,8 @@ def export_model(spec, model, out_path: str | os.PathLike, opset: int = DEFAULT_
         info = {"opset": opset, "torch": torch.__version__, "onnx": onnx.__version__,
                 "exporter": "torchscript", "export_size": list(export_size),
                 "parity_size": list(check_size), "parity_max_rel_error": max(parity.values()),
-                "parity_torch_float32_error": max(e[1] for e in errors.values())}
+                "parity_torch_float32_error": max(e[1] for e in errors.values()),
+                **{k: v for k, v in (info or {}).items() if k == "protocol_from"}}
         contract = build_contract(spec, model, code_hash or current_code_hash(), info)
         meta = contract_metadata(contract)
         del proto.metadata_props[:]
@@ -330,9 +340,9 @@ def export_run(run_dir: str | os.PathLike, out_path: str | os.PathLike, opset: i
     return export_model(spec, model, out_path, opset, code_hash=ch)
 
 
-def load_exported(path: str | os.PathLike):
-    """(spec, model, contract) of an earlier export: the spec embedded in its contract, built,
-    with every parameter and buffer read from the initializer of the same name.
+def load_exported(path: str | os.PathLike, spec=None):
+    """(spec, model, contract) of an earlier export: the spec embedded in its contract (or
+    ``spec``), built, with every parameter and buffer read from the initializer of the same name.
 
     Raises ExportError when a tensor of the model is missing or has another shape (an export
     whose constant folding merged it away, or a spec that changed its layers): that file can
@@ -345,7 +355,7 @@ def load_exported(path: str | os.PathLike):
 
     proto = onnx.load(str(path))
     contract = parse_contract({p.key: p.value for p in proto.metadata_props})
-    spec = parse_spec(contract.spec_toml, f"{path} (embedded spec)")
+    spec = spec or parse_spec(contract.spec_toml, f"{path} (embedded spec)")
     model = build_model(spec)
     weights = {i.name: i for i in proto.graph.initializer}
     state = {}
@@ -370,11 +380,14 @@ def reexport(src: str | os.PathLike, out_path: str | os.PathLike, opset: int = D
 
 
 def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_path: str | os.PathLike) -> Contract:
-    """Write the export ``src`` to ``out_path`` with the accumulation weights (``alpha``,
-    ``history_spp``) of the spec at ``spec_path``, graph and weights untouched: a run-time
-    rule of the driver, not of the graph. The spec must equal the file's embedded spec in
-    everything else (name, params, inputs, stages, state, training; comments aside), so the
-    contract never describes a graph the file does not hold. The export info records it.
+    """Write the export ``src`` to ``out_path`` with the history weights of the spec at
+    ``spec_path``: its ``[[accumulate]]`` and ``[[state]]`` ``alpha`` / ``history_spp``, rules
+    of the driver. The spec must equal the file's embedded spec in everything else (name,
+    params, inputs, stages, state, training; comments aside), so the contract never describes
+    a graph the file does not hold. Where the graph's inputs stay the same (accumulations) the
+    graph and weights are kept byte-equal; a state weight the model is now fed is a new graph
+    input, so the model is exported again with the file's weights (:func:`load_exported`).
+    The export info records the weights it was trained with.
 
     Raises ExportError naming what differs."""
     import onnx
@@ -389,6 +402,7 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
         d = spec.to_dict()
         d.pop("description")
         d["accumulate"] = [a["layer"] for a in d["accumulate"]]
+        d["state"] = [(s["name"], s["channels"]) for s in d["state"]]
         return d
 
     a, b = rest(was), rest(new)
@@ -396,10 +410,17 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
         keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
         raise ExportError(f"{spec_path}: differs from {src}'s spec in {keys}, not only in its accumulation "
                           "weights; export the model again from its run folder instead")
-    changed = {a.layer: {"alpha": a.alpha, "history_spp": a.history_spp} for a in new.accumulate}
-    info = {**old.export, "protocol_from": {"spec": Path(spec_path).name, "accumulate": changed,
-                                            "trained_with": [{"layer": a.layer, "alpha": a.alpha,
-                                                              "history_spp": a.history_spp} for a in was.accumulate]}}
+    def weights(spec) -> list:
+        return ([{"layer": a.layer, "alpha": a.alpha, "history_spp": a.history_spp} for a in spec.accumulate]
+                + [{"state": s.name, "alpha": s.alpha, "history_spp": s.history_spp} for s in spec.state if s.alpha])
+
+    info = {**old.export, "protocol_from": {"spec": Path(spec_path).name, "weights": weights(new),
+                                            "trained_with": old.export.get("protocol_from", {}).get(
+                                                "trained_with", weights(was) or "its graph's fixed weights")}}
+    if new.input_names != was.input_names:
+        _, model, _ = load_exported(src, new)
+        export_model(new, model, out_path, code_hash=old.code_hash, info=info)
+        return parse_contract({p.key: p.value for p in onnx.load(str(out_path), load_external_data=False).metadata_props})
     contract = build_contract(new, build_model(new), old.code_hash, info)
     del proto.metadata_props[:]
     for k, v in contract_metadata(contract).items():
@@ -427,8 +448,8 @@ def main(args) -> int:
         if not args.run.endswith(".onnx"):
             raise CommandError("--protocol-from takes an earlier export (FILE.onnx) as RUN")
         c = adopt_protocol(args.run, args.out, args.protocol_from)
-        weights = ", ".join(f"{a['layer']} alpha {a['alpha']:g} history_spp {a.get('history_spp', 0):g}"
-                            for a in c.accumulate)
+        weights = ", ".join(f"{w.get('layer') or w.get('state')} alpha {w['alpha']:g} history_spp {w['history_spp']:g}"
+                            for w in c.export["protocol_from"]["weights"])
         print(f"wrote {args.out}: {args.run} with the accumulation of {args.protocol_from} ({weights})")
         return 0
     rep = (reexport if Path(args.run).is_file() and args.run.endswith(".onnx") else export_run)(

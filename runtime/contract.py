@@ -82,6 +82,12 @@ def state_output_name(state: str) -> str:
     return STATE_OUTPUT_PREFIX + state
 
 
+def state_weight_name(state: str) -> str:
+    """Graph input (N, 1, 1, 1) with the current frame's weight of a state the model blends
+    itself (``<state>_weight``; format 4): the driver's :meth:`runtime.temporal.Protocol.alpha`."""
+    return state + "_weight"
+
+
 def node_prefix(stage: str) -> str:
     """Prefix of every graph node name belonging to ``stage``: ``/<stage>/``."""
     return f"/{stage}/"
@@ -96,7 +102,9 @@ class Contract:
               before feeding; "linear" = feed as-is, the graph does its own pre-processing)}
     outputs: {"name", "channels", "layout", "transfer"} ("output" first)
     stages:  {"name", "node_prefix"} in execution order
-    state:   {"name", "channels", "input" (graph input name), "output" (graph output name)}
+    state:   {"name", "channels", "input" (graph input name), "output" (graph output name)[,
+              "weight_input", "alpha", "history_spp": a state the model blends itself, with the
+              weight fed as that (N, 1, 1, 1) input, computed like an accumulation's (format 4)]}
     history: name of the history-mask input ("" when the model has no state)
     accumulate: {"layer", "input" (graph input name), "channels", "alpha"[, "history_spp"]}:
              inputs the driver feeds as their temporal accumulation with current-frame weight
@@ -228,6 +236,13 @@ def parse_contract(custom_metadata_map: Mapping[str, str]) -> Contract:
         if s["input"] not in in_names or s["output"] not in out_names:
             raise ValueError(f"model state {s['name']!r}: input {s['input']!r} / output {s['output']!r} "
                              f"not among the graph's inputs {in_names} / outputs {out_names}")
+        if "weight_input" in s:   # a state the model blends itself with a fed weight (format 4)
+            a, hs = s.get("alpha"), s.get("history_spp", 0)
+            ok = version >= 4 and s["weight_input"] in in_names and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in (a, hs)) and 0 < a <= 1 and hs >= 0
+            if not ok:
+                raise ValueError(f"model state {s['name']!r}: weight input {s['weight_input']!r} needs format 4, "
+                                 f"an input of that name, alpha in (0, 1] and history_spp >= 0 ({s})")
     if state and history not in in_names:
         raise ValueError(f"model has state but its history input {history!r} is not among {in_names}")
     fed = {i["name"]: i for i in inputs}

@@ -132,7 +132,8 @@ class Denoiser:
             numpy on the CPU provider (faster there: wskpn-3's reprojection 6.7 vs 10.4 ms at
             256x256, 64 vs 179 ms at 1280x720 in a one-off run on a 2-vCPU EPYC), the graph on
             any other.
-          accumulate_alpha: the current frame's weight for every accumulated input, in (0, 1],
+          accumulate_alpha: the current frame's weight for every accumulated input and fed state
+            weight, in (0, 1],
             instead of the file's (1: no accumulation; the file's history_spp rule is dropped
             unless ``history_spp`` is given too); a run-time knob, the graph unchanged.
           history_spp: weigh a frame of known spp by spp / (spp + history_spp) instead of the
@@ -191,10 +192,12 @@ class Denoiser:
         if history_spp is not None and not history_spp >= 0:
             raise ValueError(f"history_spp must be >= 0, got {history_spp}")
         if accumulate_alpha is not None or history_spp is not None:
-            den.protocol = replace(den.protocol, accumulate=tuple(
-                (layer, inp, alpha if accumulate_alpha is None else float(accumulate_alpha),
-                 float(history_spp) if history_spp is not None else hs if accumulate_alpha is None else 0.0)
-                for layer, inp, alpha, hs in den.protocol.accumulate))
+            def rule(alpha, hs):   # the overrides, for accumulations and fed state weights alike
+                return (alpha if accumulate_alpha is None else float(accumulate_alpha),
+                        float(history_spp) if history_spp is not None else hs if accumulate_alpha is None else 0.0)
+            den.protocol = replace(den.protocol,
+                                   accumulate=tuple((l, i, *rule(a, hs)) for l, i, a, hs in den.protocol.accumulate),
+                                   weights=tuple((i, *rule(a, hs)) for i, a, hs in den.protocol.weights))
         for name, value in (settings or {}).items():
             den.set(name, value)
         return den
@@ -351,7 +354,7 @@ class Denoiser:
         if not self.protocol.temporal:
             return {}
         if self._state is None:
-            return self.protocol.start(feeds, next(iter(feeds.values())))
+            return self.protocol.start(feeds, next(iter(feeds.values())), spp)
         if motion is None:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)

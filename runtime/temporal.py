@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Callable, Mapping
 
 from mcdenoise.runtime import workers
-from mcdenoise.runtime.contract import HISTORY, state_input_name, state_output_name
+from mcdenoise.runtime.contract import HISTORY, state_input_name, state_output_name, state_weight_name
 from mcdenoise.runtime.transfer import xp
 
 #: A tap is consistent when its world position lies within this fraction of the current
@@ -70,11 +70,14 @@ class Protocol:
       history_spp > 0 (the history counts as that many samples per pixel), else alpha
       (:meth:`alpha`).
     history: the history-mask input ("" without state).
+    weights: (graph input, alpha, history_spp) per state the model blends itself: the input
+      gets this frame's weight, (N, 1, 1, 1), by the same rule (:meth:`alpha`).
     """
 
     state: tuple[tuple[str, str, str, int], ...] = ()
     accumulate: tuple[tuple[str, str, float, float], ...] = ()
     history: str = ""
+    weights: tuple[tuple[str, float, float], ...] = ()
 
     @classmethod
     def from_contract(cls, contract) -> "Protocol":
@@ -82,16 +85,20 @@ class Protocol:
         return cls(tuple((s["name"], s["input"], s["output"], int(s["channels"])) for s in contract.state),
                    tuple((a["layer"], a["input"], float(a["alpha"]), float(a.get("history_spp", 0.0)))
                          for a in contract.accumulate),
-                   contract.history)
+                   contract.history,
+                   tuple((s["weight_input"], float(s["alpha"]), float(s.get("history_spp", 0.0)))
+                         for s in contract.state if "weight_input" in s))
 
     @classmethod
-    def from_spec(cls, state_channels: Mapping[str, int], accumulate=()) -> "Protocol":
-        """From a model spec's parts: {state name: channels} and (layer, alpha, history_spp)
-        per accumulated layer (its graph input carries its name), with the contract's input and
-        output names."""
+    def from_spec(cls, state_channels: Mapping[str, int], accumulate=(), weights: Mapping | None = None) -> "Protocol":
+        """From a model spec's parts: {state name: channels}, (layer, alpha, history_spp) per
+        accumulated layer (its graph input carries its name) and {state name: (alpha,
+        history_spp)} per state the model blends with a fed weight, with the contract's input
+        and output names."""
         state = tuple((n, state_input_name(n), state_output_name(n), int(c)) for n, c in state_channels.items())
         return cls(state, tuple((layer, layer, float(alpha), float(hs)) for layer, alpha, hs in accumulate),
-                   HISTORY if state else "")
+                   HISTORY if state else "",
+                   tuple((state_weight_name(n), float(a), float(hs)) for n, (a, hs) in (weights or {}).items()))
 
     @staticmethod
     def alpha(entry: tuple, spp=None):
@@ -118,15 +125,21 @@ class Protocol:
 
     @property
     def inputs(self) -> tuple[str, ...]:
-        """Graph inputs the protocol fills: the state inputs, then the history mask."""
-        return tuple(s[1] for s in self.state) + ((self.history,) if self.state else ())
+        """Graph inputs the protocol fills: the state inputs, the history mask, the weights."""
+        return tuple(s[1] for s in self.state) + ((self.history,) if self.state else ()) + tuple(w[0] for w in self.weights)
+
+    def _weigh(self, feeds: dict, like, spp) -> None:
+        """Each state weight input: this frame's weight (:meth:`alpha`) as (N, 1, 1, 1)."""
+        for inp, alpha, hs in self.weights:
+            a = self.alpha(("", "", alpha, hs), spp)
+            feeds[inp] = _zeros(like, (like.shape[0], 1, 1, 1)) + a
 
     @staticmethod
     def accum_key(graph_input: str) -> str:
         """Key of an accumulated input in ``kept`` (apart from the state names)."""
         return "accumulate:" + graph_input
 
-    def start(self, feeds: dict, like) -> dict:
+    def start(self, feeds: dict, like, spp=None) -> dict:
         """The first frame of a history: zero state inputs and history mask into ``feeds``
         (shaped and typed like ``like``, an (N, C, H, W) input of this frame); returns the
         accumulations kept so far (each starts at the frame itself, as :func:`accumulate`
@@ -136,6 +149,7 @@ class Protocol:
             feeds[inp] = _zeros(like, (n, ch, h, w))
         if self.state:
             feeds[self.history] = _zeros(like, (n, 1, h, w))
+        self._weigh(feeds, like, spp)
         return {self.accum_key(inp): feeds[inp] for _, inp, _, _ in self.accumulate}
 
     def follow(self, feeds: dict, kept: dict, motion, cur: dict, prev: dict,
@@ -158,6 +172,7 @@ class Protocol:
             feeds[inp] = contiguous(arr)
         if self.state:
             feeds[self.history] = contiguous(history)
+        self._weigh(feeds, history, spp)
         out = {}
         for (_, inp, _, _), arr in zip(self.accumulate, warped[len(self.state):]):
             feeds[inp] = out[self.accum_key(inp)] = contiguous(arr)

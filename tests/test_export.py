@@ -91,6 +91,9 @@ def test_dynamic_axes(name, exported):
         if t.name in settings:                       # an int64 scalar
             assert t.shape == [] and t.type == "tensor(int64)"
             continue
+        if t.name in getattr(model, "state_weights", {}):   # a state's blend weight, per image
+            assert isinstance(t.shape[0], str) and t.shape[1:] == [1, 1, 1]
+            continue
         n, *s, c, h, w = t.shape                     # (N, S, F, H, W) for a per-sample input
         assert isinstance(n, str) and isinstance(h, str) and isinstance(w, str) and isinstance(c, int)
         assert all(isinstance(x, str) for x in s) and len(s) == (t.name == "samples")
@@ -343,6 +346,43 @@ def test_adopt_protocol_changes_only_the_accumulation_weights(exported, tmp_path
         adopt_protocol(path, tmp_path / "b.onnx", load_spec("wskpn-6").path)
     assert main(["export", str(path), "--out", str(tmp_path / "c.onnx"), "--protocol-from", str(fixed)]) == 0
     assert "alpha 0.5" in capsys.readouterr().out
+
+
+def test_a_fed_state_weight_is_declared_and_checked(exported):
+    """nbg-2l-1g's [[state]] accum has an alpha: the contract's state entry names its weight
+    input (N, 1, 1, 1 in the graph, only N dynamic), format 4; malformed entries are refused."""
+    good = _session(exported["nbg-2l-1g"][2]).get_modelmeta().custom_metadata_map
+    state = json.loads(good[C.KEY_STATE])
+    assert state[0]["weight_input"] == "accum_weight" and (state[0]["alpha"], state[0]["history_spp"]) == (0.2, 1.0)
+    shape = {i.name: i.shape for i in _session(exported["nbg-2l-1g"][2]).get_inputs()}["accum_weight"]
+    assert shape[1:] == [1, 1, 1]
+    for change, version in [({"weight_input": "nope"}, "4"), ({"alpha": 0}, "4"), ({"history_spp": -1}, "4"), ({}, "3")]:
+        with pytest.raises(ValueError, match="weight input"):
+            C.parse_contract({**good, C.KEY_VERSION: version, C.KEY_STATE: json.dumps([{**state[0], **change}])})
+
+
+def test_adopt_protocol_exports_again_when_a_state_weight_becomes_an_input(tmp_path):
+    """A file whose state blend weight was a graph constant takes a spec that feeds it: the model
+    is exported again with the file's weights; at an unknown spp (the fixed alpha) its outputs
+    equal the old file's."""
+    import re
+
+    spec = load_spec("nbg-2l-1g")
+    plain = tmp_path / "nbg-2l-1g.toml"
+    plain.write_text(re.sub(r"(?m)^(alpha|history_spp) = .*# .*(unknown|else).*\n", "", spec.raw))
+    torch.manual_seed(3)
+    old_spec = load_spec(plain)
+    export_model(old_spec, build_model(old_spec), tmp_path / "old.onnx")
+    con = adopt_protocol(tmp_path / "old.onnx", tmp_path / "new.onnx", spec.path)
+    assert con.export["protocol_from"]["trained_with"] == "its graph's fixed weights"
+    old, new = _session(tmp_path / "old.onnx"), _session(tmp_path / "new.onnx")
+    assert "accum_weight" in [i.name for i in new.get_inputs()] and len(old.get_inputs()) == len(new.get_inputs()) - 1
+    feeds = example_inputs(build_model(spec), 1, 20, 24, seed=2)
+    feeds["accum_weight"][:] = 0.2
+    got = new.run(None, feeds)
+    del feeds["accum_weight"]
+    for a, b in zip(old.run(None, feeds), got):
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)
 
 
 def test_export_command(tmp_path, capsys):

@@ -223,9 +223,32 @@ def test_temporal_state_is_the_accumulated_demodulated_radiance():
     names = model.input_names
     with torch.no_grad():
         _, accum = model(*t)
+    # the weight is the one fed as accum_weight ([[state]] alpha, spp-aware), (1, 1, 1, 1)
+    weight = t[names.index("accum_weight")]
     want = temporal_accumulate(demodulate(t[names.index("color")], t[names.index("albedo")]),
-                               t[names.index("prev_accum")], t[names.index("history")], 0.2)
+                               t[names.index("prev_accum")], t[names.index("history")], weight)
     torch.testing.assert_close(accum, want)
+    assert tuple(weight.shape) == (1, 1, 1, 1)
+
+
+def test_state_weight_is_fed_by_spp_and_a_fixed_alpha_without_it():
+    """[[state]] alpha: the model blends with the accum_weight input, which the protocol fills
+    with spp / (spp + history_spp) per item; a spec without it keeps the graph constant
+    ([params].alpha) and no such input; the two weights may not disagree."""
+    import re
+
+    spec = load_spec("nbg-2l-1g")
+    assert spec.input_names[-1] == "accum_weight" and spec.protocol.weights == (("accum_weight", 0.2, 1.0),)
+    feeds = {"color": torch.zeros(2, 3, 4, 5)}
+    spec.protocol.start(feeds, feeds["color"], spp=torch.tensor([1, 3]))
+    torch.testing.assert_close(feeds["accum_weight"].reshape(-1), torch.tensor([0.5, 0.75]))
+    plain = re.sub(r"(?m)^(alpha|history_spp) = .*# .*(unknown|else).*\n", "", spec.raw)
+    fixed = parse_spec(plain, "n.toml")
+    assert "accum_weight" not in fixed.input_names and not fixed.protocol.weights
+    assert "accum_weight" not in build_model(fixed).input_names
+    with pytest.raises(SpecError, match=r"accum alpha 0.5 differs from \[params\].alpha 0.2"):
+        build_model(parse_spec(spec.raw.replace("alpha = 0.2          # the current frame's weight where",
+                                                "alpha = 0.5          # the current frame's weight where"), "n.toml"))
 
 
 def test_params_and_builder_are_validated():

@@ -627,9 +627,14 @@ def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_
 def test_history_spp_weighs_each_frame_by_its_spp():
     """history_spp = 1: a 1-spp frame is blended as with accumulate_alpha 0.5, a 3-spp frame
     as with 0.75, to the bit; a frame whose spp is unknown (no samples, no spp in its
-    metadata) keeps the file's fixed weight (shipped wskpn-3: the driver accumulates its
-    colour)."""
-    path = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
+    metadata) keeps the file's fixed weight."""
+    for path in [p for p in shipped_models() if p.endswith(("wskpn-3.onnx", "nbg-2l-1g.onnx"))]:
+        _check_history_spp(path)
+
+
+def _check_history_spp(path):
+    """wskpn-3 accumulates its colour in the driver; nbg-2l-1g blends its state itself with
+    the weight the driver feeds (accum_weight): one rule for both."""
     for spp, alpha in ((1, 0.5), (3, 0.75)):
         rule = Denoiser.load(path, log=lambda m: None, history_spp=1.0)
         fixed = Denoiser.load(path, log=lambda m: None, accumulate_alpha=alpha)

@@ -63,7 +63,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Literal, Mapping
 
 from mcdenoise.runtime import data_path
-from mcdenoise.runtime.contract import HISTORY, OUTPUT, SAMPLES_INPUT, state_input_name, state_output_name
+from mcdenoise.runtime.contract import (HISTORY, OUTPUT, SAMPLES_INPUT, state_input_name, state_output_name,
+                                       state_weight_name)
 from mcdenoise.runtime.frames import PIXEL_LAYERS
 from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.transfer import TRANSFERS
@@ -299,16 +300,26 @@ class SettingSpec:
 @dataclass(frozen=True)
 class StateSpec:
     """One temporal state tensor: (N, ``channels``, H, W), carried as ``next_<name>`` ->
-    reprojected by the driver -> ``prev_<name>``."""
+    reprojected by the driver -> ``prev_<name>``.
+
+    alpha > 0: the model blends this state with the current frame itself, with the weight fed
+    as graph input ``<name>_weight`` (N, 1, 1, 1): alpha, or spp / (spp + history_spp) for a
+    frame of known spp, the rule of an ``[[accumulate]]`` (:meth:`runtime.temporal.Protocol.alpha`).
+    0 (default): no such input."""
 
     name: str
     channels: int
+    alpha: float = 0.0
+    history_spp: float = 0.0
 
     def __post_init__(self):
         if not _IDENT_RE.match(self.name):
             raise ValueError(f"name {self.name!r} must be a lower-case identifier")
         if self.channels < 1:
             raise ValueError(f"channels must be >= 1, got {self.channels}")
+        if not 0.0 <= self.alpha <= 1.0 or not self.history_spp >= 0.0 or (self.history_spp and not self.alpha):
+            raise ValueError(f"alpha must be in (0, 1] (0: no fed weight) and history_spp >= 0 with an alpha, "
+                             f"got {self.alpha}, {self.history_spp}")
 
 
 @dataclass(frozen=True)
@@ -426,6 +437,7 @@ class ModelSpec:
         if len(set(names)) != len(names):
             raise ValueError(f"state: duplicate names in {names}")
         taken = set(self.inputs.layers) | {SAMPLES_INPUT, HISTORY} | {state_input_name(s.name) for s in self.state}
+        taken |= {state_weight_name(s.name) for s in self.state if s.alpha}
         for st in self.setting:
             if st.name in taken:
                 raise ValueError(f"setting: name {st.name!r} is already an input name")
@@ -458,7 +470,9 @@ class ModelSpec:
         ``prev_<state>``, then ``history`` if any state, then the settings."""
         names = list(self.inputs.layers) + ([SAMPLES_INPUT] if self.inputs.samples else [])
         names += [state_input_name(s.name) for s in self.state]
-        return tuple(names + ([HISTORY] if self.state else []) + [st.name for st in self.setting])
+        names += [HISTORY] if self.state else []
+        names += [state_weight_name(s.name) for s in self.state if s.alpha]
+        return tuple(names + [st.name for st in self.setting])
 
     @property
     def protocol(self):
@@ -466,7 +480,8 @@ class ModelSpec:
         from mcdenoise.runtime.temporal import Protocol
 
         return Protocol.from_spec({s.name: s.channels for s in self.state},
-                                  [(a.layer, a.alpha, a.history_spp) for a in self.accumulate])
+                                  [(a.layer, a.alpha, a.history_spp) for a in self.accumulate],
+                                  {s.name: (s.alpha, s.history_spp) for s in self.state if s.alpha})
 
     @property
     def output_names(self) -> tuple[str, ...]:
@@ -486,7 +501,9 @@ class ModelSpec:
                        **({"samples": [{"group": g, "transfer": t} for g, t in self.inputs.sample_groups]}
                           if self.inputs.samples else {})},
             "stages": list(self.stages),
-            "state": [{"name": s.name, "channels": s.channels} for s in self.state],
+            # a state's fed weight came later: left out at 0, so older specs keep their hash
+            "state": [{"name": s.name, "channels": s.channels,
+                       **({"alpha": s.alpha, "history_spp": s.history_spp} if s.alpha else {})} for s in self.state],
             # history_spp came later: left out at 0, so older specs keep their hash
             "accumulate": [{"layer": a.layer, "alpha": a.alpha, **({"history_spp": a.history_spp} if a.history_spp else {})}
                            for a in self.accumulate],

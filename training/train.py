@@ -110,7 +110,7 @@ def run_window(model, batch: dict, protocol: Protocol, autoexposure: bool = True
             feeds[name] = torch.tensor(value)
         guides = {"depth": feeds["depth"], "position": feeds["position"], "normal": feeds["normal_world"]}
         if kept is None:
-            acc = protocol.start(feeds, feeds["color"])
+            acc = protocol.start(feeds, feeds["color"], spp=batch.get("spp"))
         else:
             acc = protocol.follow(feeds, kept, feeds["motion"], guides, prev_guides, spp=batch.get("spp"))
         missing = [n for n in model.input_names if n not in feeds]

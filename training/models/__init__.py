@@ -86,6 +86,8 @@ def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0, s
         hist = rng.random((n, 1, h, w))
         layers[protocol.history] = np.where(hist < 0.3, 0.0, np.where(hist > 0.6, 1.0, hist))
     layers.update({inp: radiance(ch) for _, inp, _, ch in protocol.state})
+    # a state's fed blend weight: (n, 1, 1, 1) in (0, 1]
+    layers.update({inp: rng.uniform(0.1, 1.0, (n, 1, 1, 1)) for inp in getattr(model, "state_weights", {})})
     groups = getattr(model, "sample_groups", ())
     if groups:
         layers[SAMPLES_INPUT] = np.concatenate([_sample_group(rng, g, (n, spp, h, w), radiance) for g, _ in groups], axis=2)

@@ -55,11 +55,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mcdenoise.runtime.contract import HISTORY, state_input_name
+from mcdenoise.runtime.contract import HISTORY, state_input_name, state_weight_name
 from mcdenoise.runtime.transfer import luminance as _luminance
 from mcdenoise.training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
-                                    check_accum_model_spec, demodulate, remodulate)
-from mcdenoise.training.specs import ModelSpec, register
+                                    check_accum_model_spec, demodulate, remodulate,
+                                    temporal_accumulate)
+from mcdenoise.training.specs import ModelSpec, SpecError, register
 
 #: Range of the guide in grid units before division by η_d (Eq. 8: "d ... which we set to 255").
 GUIDE_RANGE = 255.0
@@ -363,10 +364,13 @@ class NBGTemporalStage(TemporalStage):
         super().__init__(alpha)
         self.outlier_removal = outlier_removal
 
-    def forward(self, color, albedo, prev, history):
+    def forward(self, color, albedo, prev, history, weight=None):
+        """``weight``: (N, 1, 1, 1) current-frame weights fed by the driver (a [[state]] with an
+        alpha), else the fixed α."""
         if self.outlier_removal:
             color = remove_outliers(color)
-        return super().forward(demodulate(color, albedo), prev, history)
+        irr = demodulate(color, albedo)
+        return super().forward(irr, prev, history) if weight is None else temporal_accumulate(irr, prev, history, weight)
 
 
 class GuideStage(nn.Module):
@@ -438,7 +442,8 @@ class NBG(nn.Module):
     """The NBG model; see the module docstring and ``training/models/__init__.py`` for the
     interface.  ``forward(*inputs)`` takes the tensors named by ``input_names`` in order."""
 
-    def __init__(self, params: NBGParams, layers: Sequence[str], transfer: str, temporal: bool):
+    def __init__(self, params: NBGParams, layers: Sequence[str], transfer: str, temporal: bool,
+                 weight: tuple[float, float] | None = None):
         super().__init__()
         self.params = params
         self.temporal_enabled = temporal
@@ -448,12 +453,16 @@ class NBG(nn.Module):
         self.splat = SplatStage(params)
         self.slice = SliceStage(params)
         self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
+        # [[state]] accum with an alpha: the driver feeds this frame's weight (spp-aware)
+        self.state_weights = {state_weight_name(ACCUM): weight} if temporal and weight else {}
+        self.input_names += tuple(self.state_weights)
 
     def forward(self, *inputs):
         t = bind_inputs(self, inputs)
         x = t["color"]
         if self.temporal_enabled:
-            x = self.temporal(x, t["albedo"], t[state_input_name(ACCUM)], t[HISTORY])
+            x = self.temporal(x, t["albedo"], t[state_input_name(ACCUM)], t[HISTORY],
+                              t.get(state_weight_name(ACCUM)))
         irr, guides, weights = self.guide(x, t["albedo"], t["normal"], t["depth"])
         grids, coords = self.splat(irr, guides)
         out = self.slice(grids, coords, weights, t["albedo"])
@@ -475,4 +484,9 @@ def build_nbg(spec: ModelSpec) -> NBG:
     temporal stage)."""
     params = spec.params_as(NBGParams)
     temporal = check_accum_model_spec(spec, "nbg", LAYERS, ("guide", "splat", "slice"))
-    return NBG(params, spec.inputs.layers, spec.inputs.transfer, temporal)
+    state = spec.state[0] if spec.state else None
+    if state is not None and state.alpha and state.alpha != params.alpha:
+        raise SpecError(f"{spec.path or spec.name}: [[state]] accum alpha {state.alpha} differs from "
+                        f"[params].alpha {params.alpha}: one weight, in both places")
+    weight = (state.alpha, state.history_spp) if state is not None and state.alpha else None
+    return NBG(params, spec.inputs.layers, spec.inputs.transfer, temporal, weight)

@@ -47,3 +47,14 @@ for spp in 1 4; do
   mcdenoise evaluate $models --data data/curves-test --spp $spp --warmup 2 --no-oidn --alpha 1 --json $out/curves-test-$spp-none.json
   mcdenoise evaluate $models --data data/curves-test --spp $spp --warmup 2 --no-oidn --json $out/curves-test-$spp-k1.json
 done
+# NBG: its state's blend weight became an input the driver feeds (models_spec/nbg-*.toml
+# [[state]] alpha / history_spp); the shipped files exported again with their trained weights
+# (from the files before this change: git show a42a236:models/nbg-2l-1g.onnx), then scored.
+for m in nbg-2l-1g nbg-2l-3g; do
+  mcdenoise export models/$m.onnx --out models/$m.onnx --protocol-from models_spec/$m.toml
+done
+for spp in 1 2 4 8; do
+  mcdenoise evaluate models/nbg-2l-1g.onnx models/nbg-2l-3g.onnx --data data/long-slow --spp $spp --warmup 8 --no-oidn --json $out/nbg-$spp-k1.json
+  mcdenoise evaluate models/nbg-2l-1g.onnx models/nbg-2l-3g.onnx --data data/long-slow --spp $spp --warmup 8 --no-oidn --alpha 0.2 --json $out/nbg-$spp-fixed0.2.json
+  mcdenoise evaluate models/nbg-2l-1g.onnx models/nbg-2l-3g.onnx --data data/long-slow --spp $spp --warmup 8 --no-oidn --alpha 1 --json $out/nbg-$spp-none.json
+done
