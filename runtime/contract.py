@@ -34,7 +34,8 @@ from typing import Any, Mapping
 #: Version of the metadata layout below; a reader refuses files with a newer one.  2 added
 #: :data:`KEY_ACCUMULATE` (a version-1 reader would feed the raw layer: silently wrong); 3 the
 #: per-sample input (:data:`SAMPLES_LAYOUT`) and :data:`KEY_SETTINGS`; 4 an accumulation's
-#: optional ``history_spp`` (a version-3 reader would blend with the fixed alpha instead).
+#: optional ``history_spp`` and a state's fed weight input (a version-3 reader would blend
+#: with the fixed alpha, or not feed the weight at all).
 FORMAT_VERSION = 4
 #: Every mcdenoise key starts with this.
 PREFIX = "mcdenoise."
