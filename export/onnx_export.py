@@ -410,6 +410,7 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
         keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
         raise ExportError(f"{spec_path}: differs from {src}'s spec in {keys}, not only in its accumulation "
                           "weights; export the model again from its run folder instead")
+
     def weights(spec) -> list:
         return ([{"layer": a.layer, "alpha": a.alpha, "history_spp": a.history_spp} for a in spec.accumulate]
                 + [{"state": s.name, "alpha": s.alpha, "history_spp": s.history_spp} for s in spec.state if s.alpha])
@@ -439,8 +440,9 @@ def add_arguments(p) -> None:
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET,
                    help=f"ONNX opset, >= 17 (default {DEFAULT_OPSET})")
     p.add_argument("--protocol-from", default=None, metavar="SPEC",
-                   help="with an earlier export as RUN: only take the accumulation weights of SPEC (a spec "
-                   "otherwise equal to the file's), graph and weights untouched")
+                   help="with an earlier export as RUN: take only the history weights of SPEC (a spec otherwise "
+                   "equal to the file's): metadata only for an accumulation; a state's fed weight is a new "
+                   "graph input, so the model is exported again with the file's weights")
 
 
 def main(args) -> int:
