@@ -529,6 +529,56 @@ def test_rerun_keeps_finished_sequences(tiny_dataset, capsys):
         assert json.load(fh)["sequences"] == manifest["sequences"]
 
 
+def test_an_interrupted_sequence_resumes_at_its_first_missing_frame(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """A render stopped mid-sequence keeps the frames it wrote and renders only the rest, which
+    then equal an uninterrupted render; frames of other settings are never kept."""
+    from mcdenoise.training.render import renderer
+
+    with open(os.path.join(tiny_dataset, MANIFEST)) as fh:
+        variant = json.load(fh)["sequences"][0]["variant"]
+    args = list(TINY_ARGS)
+    args[args.index("--scenes") + 1] = "1"
+    out = str(tmp_path / "r")
+    folder = os.path.join(out, SEQS[0])
+    real = renderer.SequenceRenderer.render_frame
+    rendered = []
+
+    def stop_at(n):
+        def render_frame(self, t, progress=None):
+            if t == n:
+                raise RuntimeError("killed")
+            rendered.append(t)
+            return real(self, t, progress)
+        return render_frame
+
+    monkeypatch.setattr(renderer.SequenceRenderer, "render_frame", stop_at(2))
+    assert cli_main(["render", "--out", out, *args, "--variant", variant]) != 0
+    assert "killed" in capsys.readouterr().err
+    kept = [os.path.join(folder, frame_name(t)) for t in range(2)]
+    mtimes = [os.stat(p).st_mtime_ns for p in kept]
+    assert not os.path.exists(os.path.join(folder, frame_name(2)))
+
+    rendered.clear()
+    monkeypatch.setattr(renderer.SequenceRenderer, "render_frame", stop_at(99))
+    assert cli_main(["render", "--out", out, *args, "--variant", variant]) == 0
+    assert rendered == [2]
+    assert [os.stat(p).st_mtime_ns for p in kept] == mtimes
+    assert not os.path.exists(os.path.join(folder, command.PARTIAL))
+    for t in range(3):
+        a = read_frame(os.path.join(folder, frame_name(t)))
+        b = read_frame(os.path.join(tiny_dataset, SEQS[0], frame_name(t)))
+        np.testing.assert_array_equal(a.color, b.color)
+        np.testing.assert_array_equal(a.reference, b.reference)
+
+    # Other settings: the old frames go before the first new one is rendered.
+    monkeypatch.setattr(renderer.SequenceRenderer, "render_frame", stop_at(0))
+    other = list(args)
+    other[other.index("--ref-spp") + 1] = "32"
+    assert cli_main(["render", "--out", out, *other, "--variant", variant]) != 0
+    capsys.readouterr()
+    assert not any(os.path.exists(os.path.join(folder, frame_name(t))) for t in range(3))
+
+
 # ----------------------------------------------------------------------------------------------
 # Camera maths
 # ----------------------------------------------------------------------------------------------

@@ -212,6 +212,39 @@ def _sequence(mi, a: argparse.Namespace, job: dict, folder: str):
     return load_procedural(mi, spec, folder, job["frames"], a.spp)
 
 
+PARTIAL = ".partial.json"
+
+
+def _resume_frames(folder: str, key: dict, overwrite: bool):
+    """``keep(t)`` for ``render_sequence``: a sequence interrupted mid-way (a session that ended,
+    a killed job) resumes at its first missing frame.  Frames are kept only when the folder's
+    ``.partial.json`` says they were rendered with exactly these settings (written before the
+    first frame; frames are written atomically, so a file that exists is whole)."""
+    from mcdenoise.runtime.frames import frame_name
+
+    os.makedirs(folder, exist_ok=True)
+    marker = os.path.join(folder, PARTIAL)
+    key = json.loads(json.dumps(key))       # the JSON form, so tuples compare equal to lists
+    try:
+        with open(marker) as fh:
+            same = json.load(fh) == key
+    except (OSError, ValueError):
+        same = False
+    if overwrite or not same:
+        # Frames of other settings go first: a later resume must never keep one of them.
+        for t in range(int(key["job"]["frames"])):
+            try:
+                os.remove(os.path.join(folder, frame_name(t)))
+            except FileNotFoundError:
+                pass
+        tmp = marker + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(key, fh, sort_keys=True)
+        os.replace(tmp, marker)
+        return None
+    return lambda t: os.path.isfile(os.path.join(folder, frame_name(t)))
+
+
 def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     """Render one sequence; returns its manifest entry.  ``progress``: a callable taking the
     number of finished render calls, or a queue to put them on (worker processes)."""
@@ -225,8 +258,12 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     try:
         seq = _sequence(mi, a, job, folder)
         report = progress.put if hasattr(progress, "put") else progress
+        keep = _resume_frames(folder, {"settings": _settings(a, variant), "job": job,
+                                       "pixel_only": bool(getattr(a, "pixel_only", False))},
+                              overwrite=bool(getattr(a, "overwrite", False)))
         seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
-                                  pixel_only=getattr(a, "pixel_only", False))
+                                  pixel_only=getattr(a, "pixel_only", False), keep=keep)
+        os.remove(os.path.join(folder, PARTIAL))
     except RenderError:
         raise
     except Exception as e:  # one line naming the sequence, not a traceback (also from worker processes)

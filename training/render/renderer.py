@@ -430,10 +430,14 @@ class SequenceRenderer:
 
 def render_sequence(mi, seq: Sequence, folder: str, spp: int, ref_spp: int, variant: str,
                     progress: Callable[[int], None] | None = None,
-                    on_frame: Callable[[int], None] | None = None, pixel_only: bool = False) -> float:
+                    on_frame: Callable[[int], None] | None = None, pixel_only: bool = False,
+                    keep: Callable[[int], bool] | None = None) -> float:
     """Render and write every frame of ``seq`` into ``folder``; returns the seconds it took.
     ``progress(n)`` is called after every render call, ``on_frame(t)`` after every frame.
-    ``pixel_only`` drops the per-sample layers from the files (pixel models, small samples)."""
+    ``pixel_only`` drops the per-sample layers from the files (pixel models, small samples).
+    ``keep(t)`` true: frame t is already in ``folder`` from an interrupted render with the same
+    settings and is not rendered again (every frame's seeds depend on the frame alone, so the
+    kept file equals what rendering it again would write)."""
     os.makedirs(folder, exist_ok=True)
     start = _time.perf_counter()
     renderer = SequenceRenderer(mi, seq, spp, ref_spp, variant)
@@ -442,6 +446,10 @@ def render_sequence(mi, seq: Sequence, folder: str, spp: int, ref_spp: int, vari
         cam.save_camera_path(os.path.join(folder, SCENE_DIR, "camera_path.json"),
                              seq.path.key_frames(seq.frames), seq.intrinsics)
     for t in range(seq.frames):
+        if keep is not None and keep(t):
+            if progress:
+                progress(passes_per_frame(spp, ref_spp, seq.motion_blur))
+            continue
         try:
             frame = renderer.render_frame(t, progress)
         except Exception as e:  # Mitsuba and the checks raise RuntimeError; name where it happened
