@@ -183,3 +183,32 @@ def test_anf_trains_on_one_spp_per_batch_exports_and_denoises_the_rendered_frame
     assert "mcdenoise sweep" in (tmp_path / "sweep" / "sweep.md").read_text()
     assert main(["sweep", str(tmp_path / "anf.onnx"), "--data", tiny_dataset, "--values", "4",
                  "--out", str(tmp_path / "s2")]) == 2
+
+
+def test_cosine_learning_rate_decays_over_the_steps(tiny_dataset, tmp_path):
+    from mcdenoise.training.train import learning_rate
+
+    cfg = {"lr": 1e-3, "steps": 100, "lr_schedule": "cosine"}
+    rates = [learning_rate(cfg, s) for s in range(101)]
+    assert rates[0] == 1e-3 and abs(rates[100] - 5e-5) < 1e-12
+    assert all(a >= b for a, b in zip(rates, rates[1:]))
+    assert learning_rate({**cfg, "lr_schedule": "constant"}, 73) == 1e-3
+    run = tmp_path / "cos"
+    train("wskpn-3", tiny_dataset, run, steps=3, lr_schedule="cosine", **KW)
+    ckpt = torch.load(run / runs.CHECKPOINT_FILE, weights_only=False)
+    config = json.loads((run / runs.CONFIG_FILE).read_text())
+    assert config["lr_schedule"] == "cosine"
+    assert ckpt["optimizer"]["param_groups"][0]["lr"] == learning_rate(config, 2)
+    try:
+        train("wskpn-3", tiny_dataset, run, steps=4, resume=True, lr_schedule="constant", **KW)
+    except ValueError as e:
+        assert "keeps its schedule" in str(e)
+    else:
+        raise AssertionError("a resumed run changed its schedule")
+    try:
+        train("wskpn-3", tiny_dataset, tmp_path / "endless", lr_schedule="cosine", **KW)
+    except ValueError as e:
+        assert "finite --steps" in str(e)
+    else:
+        raise AssertionError("cosine without a finite --steps")
+    assert not (tmp_path / "endless").exists()
