@@ -262,10 +262,12 @@ class Denoiser:
             # scaled while it is converted (one pass fewer over it).
             exposed = {l: np.float32(self.exposure) for l in RADIANCE_LAYERS} \
                 if self._state is not None and self.exposure != 1.0 else None
-            planes = frame_planes(fr, dict.fromkeys([*self.frame_layers, *extra]), rep,
+            # The colour sets the exposure and replaces a bad output even when the model reads only samples.
+            layers = [*self.frame_layers, *(() if "color" in self.frame_layers else ("color",))]
+            planes = frame_planes(fr, dict.fromkeys([*layers, *extra]), rep,
                                   buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
                                   scale=exposed)
-            feeds_by_layer = model_inputs(planes, self.frame_layers, fr.meta)
+            feeds_by_layer = model_inputs(planes, layers, fr.meta)
             guides = self._guide_buffers(fr, planes)
             if self._state is None:
                 # A new history: fix its exposure now, so the state stays in one unit.
@@ -276,7 +278,8 @@ class Denoiser:
                     # In place: the planes are the driver's own buffers (frame_planes copies
                     # every layer), and a new 11 MB array costs its page faults (720p).
                     a = np.multiply(a, np.float32(self.exposure), out=a)
-                feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
+                if l in self._input_name:
+                    feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
             if self._samples is not None:
                 feeds[self._samples["name"]] = sample_inputs(fr, [g["group"] for g in self._samples["groups"]], rep,
                                                              None if self.exposure == 1.0 else self.exposure)

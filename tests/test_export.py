@@ -21,7 +21,9 @@ from mcdenoise.training.specs import build_model, list_specs, load_spec, parse_s
 
 SPECS = list_specs()
 #: Model type -> the stage that runs its neural network.
-NETWORK_STAGE = {"wskpn": ("prediction",), "nbg": ("guide",), "anf": ("embedding", "unet")}
+NETWORK_STAGE = {"wskpn": ("prediction",), "nbg": ("guide",), "anf": ("embedding", "unet"),
+                 # NDLE: every stage holds a network (reducer, U-Net, partitioner, kernel generators)
+                 "ndle": ("sample_reducer", "unet", "sample_partitioner", "layer_filtering")}
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +163,8 @@ def test_contract_round_trips(name, exported):
                for i in con.inputs)
     if spec.inputs.samples:
         assert [(g["group"], g["transfer"]) for g in con.samples_input["groups"]] == list(spec.inputs.sample_groups)
-    assert {i["name"]: i["channels"] for i in con.inputs}["color"] == 3
+    if "color" in spec.inputs.layers:
+        assert {i["name"]: i["channels"] for i in con.inputs}["color"] == 3
     assert con.stage_names == list(spec.stages)
     assert con.stage_of(f"/{spec.stages[-1]}/Mul_3") == spec.stages[-1] and con.stage_of("/other/Mul") is None
     assert [(s["name"], s["channels"], s["input"], s["output"]) for s in con.state] == \
@@ -230,11 +233,15 @@ def test_failed_parity_raises_and_leaves_no_file(name, tmp_path):
     model = build_model(spec)
     honest = model.deploy
 
+    # An untrained NDLE's kernels are near-uniform splats whose ratios cancel most of a change
+    # of its first convolution (0.1% moves the output by 1e-5): there the bug is 5%.
+    factor = 1.05 if spec.type == "ndle" else 1.001
+
     def broken_deploy():
         d = honest()
         conv = next(m for m in d.modules() if isinstance(m, torch.nn.Conv2d))
         with torch.no_grad():
-            conv.weight.mul_(1.001)
+            conv.weight.mul_(factor)
         return d
 
     model.deploy = broken_deploy

@@ -122,11 +122,23 @@ def test_wrong_params_type_is_named(name):
 def test_bad_inputs_are_rejected(name):
     raw = load_spec(name).raw
     with pytest.raises(SpecError, match=r"\[inputs\]: layers: unknown pixel layer 'colour'"):
-        parse_spec(raw.replace('"color"', '"colour"', 1), "i.toml")
+        parse_spec(re.sub(r"(?m)^layers\s*=\s*\[.*\]", 'layers = ["colour"]', raw, count=1), "i.toml")
     with pytest.raises(SpecError, match=r"transfer: unknown 'filmic'"):
         parse_spec(_replace_key(raw, "transfer", '"filmic"'), "i.toml")
     with pytest.raises(SpecError, match=r"missing required key 'stages'"):
         parse_spec(re.sub(r"(?m)^stages\s*=.*$", "", raw), "i.toml")
+
+
+def test_a_model_reads_pixel_layers_or_samples():
+    raw = load_spec("wskpn-3").raw
+    with pytest.raises(SpecError, match=r"at least one pixel layer is needed, or per-sample groups"):
+        parse_spec(re.sub(r"(?m)^layers\s*=\s*\[.*\]", "layers = []", raw, count=1), "i.toml")
+    ndle = load_spec("ndle-s")
+    assert ndle.inputs.layers == () and ndle.input_names == ("samples",)
+    with pytest.raises(SpecError, match=r"type 'ndle' reads samples only"):
+        build_model(parse_spec(ndle.raw.replace("layers = []", 'layers = ["color"]', 1), "n.toml"))
+    with pytest.raises(SpecError, match=r"needs the 'radiance' group"):
+        build_model(parse_spec(ndle.raw.replace('{ group = "radiance", transfer = "log1p" },', ""), "n.toml"))
 
 
 def test_accumulate_is_validated():

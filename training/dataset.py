@@ -237,7 +237,8 @@ class SequenceDataset:
                          valid=None if fr.valid is None else fr.valid[win],
                          reference=fr.reference[win], meta=fr.meta, path=fr.path)
             report = SanitizeReport()
-            names = self.layers + ("reference", "motion", "position", "normal", "depth")
+            # colour always: the unroll's auto-exposure reads it, also for a model of samples only
+            names = ("color",) + self.layers + ("reference", "motion", "position", "normal", "depth")
             if crop.valid is not None:
                 names += ("valid",)
             arrays = frame_inputs(crop, tuple(dict.fromkeys(names)), report)

@@ -262,8 +262,8 @@ class InputsSpec:
                 raise ValueError(f"layers: unknown pixel layer {l!r}; known: {names}")
         if len(set(self.layers)) != len(self.layers):
             raise ValueError(f"layers: duplicate entries in {list(self.layers)}")
-        if not self.layers:
-            raise ValueError("layers: at least one layer is needed")
+        if not self.layers and not self.samples:
+            raise ValueError("layers: at least one pixel layer is needed, or per-sample groups (samples)")
         if self.transfer not in TRANSFERS:
             raise ValueError(f"transfer: unknown {self.transfer!r}; known: {sorted(TRANSFERS)}")
         groups = [g.group for g in self.samples]

@@ -39,7 +39,8 @@ one child module per spec stage, named after it (``model.temporal``, ``model.pre
     fastest equivalent code path); the exporter exports ``model.deploy()``.
 
 Training calls ``model.train()`` / ``model.eval()`` as usual; the builders are in the modules
-of this package (``wskpn``: WSKPN; ``nbg``: neural bilateral grid), with the pieces they
+of this package (``wskpn``: WSKPN; ``nbg``: neural bilateral grid; ``anf``: affinity of neural features;
+``ndle``: layer embeddings), with the pieces they
 share (albedo demodulation, temporal accumulation, network features) in ``common``.
 """
 from __future__ import annotations
@@ -51,6 +52,7 @@ from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.training.models import anf  # noqa: F401  (registers type "anf")
 from mcdenoise.training.models import nbg  # noqa: F401  (registers type "nbg")
+from mcdenoise.training.models import ndle  # noqa: F401  (registers type "ndle")
 from mcdenoise.training.models import wskpn  # noqa: F401  (registers type "wskpn")
 
 

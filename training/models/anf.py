@@ -38,14 +38,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT
-from mcdenoise.runtime.inputs import sample_group_channels
-from mcdenoise.runtime.transfer import get as get_transfer
-from mcdenoise.training.models.common import bind_inputs
+from mcdenoise.training.models.common import LEAK, SampleEmbedding, bind_inputs
 from mcdenoise.training.models.wskpn import pad_to_multiple
 from mcdenoise.training.specs import ModelSpec, SpecError, register
 
-#: Slope of the leaky ReLUs (the paper does not give it: torch's default).
-LEAK = 0.01
 #: Eq. 6, 8: the normalisation's epsilon.
 EPSILON = 1e-10
 #: Stages, in order.
@@ -139,39 +135,11 @@ def spatial_filter(x, f, a, c, size, dilation: int):
     return num + c * x, den + c
 
 
-class Embedding(nn.Module):
+class Embedding(SampleEmbedding):
     """Stage "embedding": samples (N, S, F, H, W) -> e (N, E, H, W), Eq. 1."""
 
     def __init__(self, groups: tuple[tuple[str, str], ...], p: ANFParams):
-        super().__init__()
-        self.groups = groups
-        cin = sum(sample_group_channels(g) for g, _ in groups)
-        layers = []
-        for i in range(p.embed_layers):
-            layers += [nn.Conv2d(cin if i == 0 else p.embed_width, p.embed_width, 1), nn.LeakyReLU(LEAK)]
-        self.mlp = nn.Sequential(*layers)
-        self.width = p.embed_width
-
-    def features(self, samples: torch.Tensor) -> torch.Tensor:
-        """The MLP's input: each group through its transfer, depth over the frame's max."""
-        parts, c = [], 0
-        for group, transfer in self.groups:
-            n = sample_group_channels(group)
-            x = samples[:, :, c:c + n]
-            if group == "depth":
-                x = x / x.amax(dim=(1, 2, 3, 4), keepdim=True).clamp(min=1e-12)
-            parts.append(get_transfer(transfer)(x))
-            c += n
-        return torch.cat(parts, dim=2)
-
-    def forward(self, samples: torch.Tensor) -> torch.Tensor:
-        """samples (N, S, F, H, W): linear, sanitised, exposed (runtime.inputs.sample_inputs)
-        -> e (N, E, H, W), the mean over S of the per-sample MLP."""
-        x = self.features(samples)
-        n, s, c, h, w = x.shape
-        # reshape with the traced sizes (``unflatten`` bakes the traced H, W into the graph)
-        e = self.mlp(x.reshape(n * s, c, h, w))
-        return e.reshape(n, s, self.width, h, w).mean(dim=1)
+        super().__init__(groups, p.embed_width, p.embed_layers)
 
 
 def _conv(cin: int, cout: int, act: bool = True) -> nn.Module:

@@ -8,6 +8,8 @@ the same way (STYLE: no magic constant in ten files):
   too) and :class:`TemporalStage`: the exponential moving average with the driver's
   reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2), for models that accumulate in-graph;
 * :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth];
+* :class:`SampleEmbedding`: the per-sample MLP over the ``samples`` input (ANF Eq. 1, NDLE's
+  sample reducer), its features each group through its transfer;
 * :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`,
   :func:`check_accum_model_spec`: the model-interface bookkeeping of a model whose only state
   is the accumulated radiance.
@@ -19,8 +21,13 @@ from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, OUTPUT, state_input_name, state_output_name
 from mcdenoise.runtime.inputs import ALBEDO_EPS  # noqa: F401  (defined in runtime: SVGF uses it too)
+from mcdenoise.runtime.inputs import sample_group_channels
 from mcdenoise.runtime.temporal import accumulate as temporal_accumulate  # noqa: F401  (the driver blends too)
 from mcdenoise.runtime.transfer import get as get_transfer
+
+#: Slope of the leaky ReLUs of the per-sample networks (ANF does not give it: torch's default;
+#: NDLE App. B: 0.01).
+LEAK = 0.01
 
 #: State name of the accumulated-radiance temporal state (WSKPN §4.1, NBG §4.6).
 ACCUM = "accum"
@@ -106,3 +113,51 @@ def check_accum_model_spec(spec, type_name: str, layers, stages) -> bool:
         raise SpecError(f"{where}: stages must be {list(want)} for type '{type_name}', got {list(spec.stages)}")
     check_accum_state(spec, temporal, where, type_name)
     return temporal
+
+
+class SampleEmbedding(nn.Module):
+    """A per-sample MLP: ``layers`` 1×1 convolutions of ``width`` channels with leaky ReLUs on
+    each sample's features (ANF §3.1 Eq. 1, NDLE App. B "sample reducer": 3 layers of 32).
+
+    ``groups``: (group, transfer) of the ``samples`` input's channels, in order (the spec's
+    ``[inputs].samples``)."""
+
+    def __init__(self, groups: tuple[tuple[str, str], ...], width: int, layers: int):
+        super().__init__()
+        self.groups = groups
+        cin = sum(sample_group_channels(g) for g, _ in groups)
+        mods = []
+        for i in range(layers):
+            mods += [nn.Conv2d(cin if i == 0 else width, width, 1), nn.LeakyReLU(LEAK)]
+        self.mlp = nn.Sequential(*mods)
+        self.width = width
+
+    def features(self, samples: torch.Tensor) -> torch.Tensor:
+        """The MLP's input (N, S, F, H, W): each group through its transfer, depth divided by
+        the frame's largest sample depth (scene units vary; the papers scale to [0, 1])."""
+        parts, c = [], 0
+        for group, transfer in self.groups:
+            n = sample_group_channels(group)
+            x = samples[:, :, c:c + n]
+            if group == "depth":
+                x = x / x.amax(dim=(1, 2, 3, 4), keepdim=True).clamp(min=1e-12)
+            parts.append(get_transfer(transfer)(x))
+            c += n
+        return torch.cat(parts, dim=2)
+
+    def per_sample(self, samples: torch.Tensor, multiple: int = 1) -> torch.Tensor:
+        """samples (N, S, F, H, W): linear, sanitised, exposed (runtime.inputs.sample_inputs) ->
+        each sample's embedding (N·S, E, H', W'), H' and W' replicate-padded up to a multiple of
+        ``multiple`` (the MLP is per pixel, so padding first equals padding after)."""
+        from mcdenoise.training.models.wskpn import pad_to_multiple
+
+        x = self.features(samples)
+        n, s, c, h, w = x.shape
+        # reshape with the traced sizes (``unflatten`` bakes the traced H, W into the graph)
+        x = x.reshape(n * s, c, h, w)
+        return self.mlp(pad_to_multiple(x, multiple) if multiple > 1 else x)
+
+    def forward(self, samples: torch.Tensor) -> torch.Tensor:
+        """samples (N, S, F, H, W) -> e (N, E, H, W), the mean over S of the per-sample MLP."""
+        n, s, h, w = samples.shape[0], samples.shape[1], samples.shape[3], samples.shape[4]
+        return self.per_sample(samples).reshape(n, s, self.width, h, w).mean(dim=1)
