@@ -10,6 +10,8 @@ out=docs/results/retrain
 # The runs (one core each, about an hour; both resume with --resume):
 #   mcdenoise train wskpn-6 --data data/curves-train --out runs/wskpn-6-r2 --spp 1 2 4 8 --window 8 \
 #     --temporal-weight 0.25 --steps 2400 --lr-schedule cosine --val-every 300 --test data/curves-test --threads 1
+#   (it stopped at the spec's 60 minutes, step 1199; then:)
+#   mcdenoise train wskpn-6 --data data/curves-train --out runs/wskpn-6-r2 --resume --minutes 110 --threads 1
 #   mcdenoise train ndle-s --data data/curves-train --out runs/ndle-s --spp 1 2 4 8 --steps 4000 \
 #     --lr-schedule cosine --minutes 75 --val-every 500 --test data/curves-test --threads 1
 mcdenoise export runs/wskpn-6-r2 --out $out/wskpn-6-r2.onnx
