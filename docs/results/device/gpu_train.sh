@@ -4,7 +4,8 @@
 # network, Mitsuba or OpenEXR; so first, here:
 #   python -m mcdenoise.training.carry --out .gpu/wheels --variants cuda_ad_rgb   # ~55 MB (Mitsuba stripped)
 # then, with the device tool (carry [".gpu"]; the tracked tree is ~8 MB more):
-#   bash docs/results/device/gpu_train.sh SPEC SCENES MINUTES
+#   bash docs/results/device/gpu_train.sh SPEC[,SPEC...] SCENES MINUTES
+# (several specs train one after another on the same rendered shard, MINUTES each)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
 # them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
 # spp drawn from 1..8, 8-frame windows and the temporal term, and leaves the run folder in
@@ -26,9 +27,13 @@ mcd render --out /tmp/data/shard-10 --scenes "$scenes" --frames 8 --size 256x256
   --seed 10 --enclosed 0.5 --variant cuda_ad_rgb --workers 2 2> "$OUT/render.log"
 echo "render: $(( $(date +%s) - start )) s for $scenes scenes" | tee "$OUT/times.txt"
 cp /tmp/data/shard-10/manifest.json "$OUT/manifest.json"
-start=$(date +%s)
-mcd train "$spec" --data /tmp/data --out "$OUT/run-$spec" --device cuda --minutes "$minutes" --steps 1000000 \
-  --spp 1 2 4 8 --window 8 --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
-  2> "$OUT/train.log"
-echo "train: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
-tail -n 3 "$OUT/train.log"
+for one in ${spec//,/ }; do
+  # per-frame models (NDLE) train on single frames; the temporal ones on 8-frame windows
+  window=8; if grep -q '^window = 1' "models_spec/$one.toml"; then window=1; fi
+  start=$(date +%s)
+  mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device cuda --minutes "$minutes" --steps 1000000 \
+    --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
+    2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
+  echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
+  tail -n 3 "$OUT/train-$one.log"
+done
