@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Issue 15's recipe on the data this machine has, and NDLE's first weights (issue 16): the
+# Issue 15's recipe on the data this machine has: the
 # retrained wskpn-6 (spp 1-8, 8-frame windows, temporal term, cosine learning rate) against the
-# shipped one, and ndle-s against anf-s, on the held-out sets data/curves-test (seed 11) and
+# shipped one (ndle-s: docs/results/ndle/commands.sh), on the held-out sets data/curves-test (seed 11) and
 # data/long-slow (seed 6), sequences and stills.  Data: data/render-curves*.sh commands in the
 # model cards; data/long-slow: docs/render-queue.sh.
 set -e
@@ -12,17 +12,14 @@ out=docs/results/retrain
 #     --temporal-weight 0.25 --steps 2400 --lr-schedule cosine --val-every 300 --test data/curves-test --threads 1
 #   (it stopped at the spec's 60 minutes, step 1199; then:)
 #   mcdenoise train wskpn-6 --data data/curves-train --out runs/wskpn-6-r2 --resume --minutes 110 --threads 1
-#   mcdenoise train ndle-s --data data/curves-train --out runs/ndle-s --spp 1 2 4 8 --steps 4000 \
-#     --lr-schedule cosine --minutes 75 --val-every 500 --test data/curves-test --threads 1
 mcdenoise export runs/wskpn-6-r2 --out $out/wskpn-6-r2.onnx
-mcdenoise export runs/ndle-s --out $out/ndle-s.onnx
 for spp in 1 4; do
   mcdenoise evaluate models/wskpn-6.onnx $out/wskpn-6-r2.onnx --data data/long-slow --spp $spp --warmup 8 \
     --json $out/long-slow-${spp}spp.json
-  mcdenoise evaluate models/wskpn-6.onnx $out/wskpn-6-r2.onnx models/anf-s.onnx $out/ndle-s.onnx \
+  mcdenoise evaluate models/wskpn-6.onnx $out/wskpn-6-r2.onnx \
     --data data/curves-test --spp $spp --warmup 2 --json $out/curves-test-${spp}spp.json
 done
 for spp in 1 2 4 8; do
-  mcdenoise evaluate models/wskpn-6.onnx $out/wskpn-6-r2.onnx models/anf-s.onnx $out/ndle-s.onnx \
+  mcdenoise evaluate models/wskpn-6.onnx $out/wskpn-6-r2.onnx \
     --data data/curves-test --spp $spp --stills --no-oidn --json $out/stills-curves-test-${spp}spp.json
 done
