@@ -20,3 +20,4 @@ for data in curves-test long-slow; do
   done
 done
 python -m mcdenoise.export.timing --what models --specs ndle-s --sizes 1280x720 --spp 8 --repeats 2 --warmup 1 --threads 1
+python -m mcdenoise.training.memory models/ndle-s.onnx 1280x720 --spp 8 --frames 2 --threads 1
