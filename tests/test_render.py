@@ -563,6 +563,9 @@ def test_an_interrupted_sequence_resumes_at_its_first_missing_frame(tiny_dataset
     assert cli_main(["render", "--out", out, *args, "--variant", variant]) == 0
     assert rendered == [2]
     assert [os.stat(p).st_mtime_ns for p in kept] == mtimes
+    with open(os.path.join(out, MANIFEST)) as fh:
+        entry = json.load(fh)["sequences"][0]
+    assert entry["resumed_frames"] == 2 and entry["render_seconds"] == pytest.approx(3 * entry["seconds_per_frame"], abs=2e-3)
     assert not os.path.exists(os.path.join(folder, command.PARTIAL))
     for t in range(3):
         a = read_frame(os.path.join(folder, frame_name(t)))

@@ -261,9 +261,13 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
         keep = _resume_frames(folder, {"settings": _settings(a, variant), "job": job,
                                        "pixel_only": bool(getattr(a, "pixel_only", False))},
                               overwrite=bool(getattr(a, "overwrite", False)))
+        resumed = sum(bool(keep(t)) for t in range(job["frames"])) if keep else 0
         seconds = render_sequence(mi, seq, folder, a.spp, a.ref_spp, variant, progress=report,
                                   pixel_only=getattr(a, "pixel_only", False), keep=keep)
         os.remove(os.path.join(folder, PARTIAL))
+        # A resumed sequence's time per frame is of the frames this run rendered; its total is
+        # extrapolated from that (the interrupted run's clock is gone).
+        per_frame = seconds / max(seq.frames - resumed, 1)
     except RenderError:
         raise
     except Exception as e:  # one line naming the sequence, not a traceback (also from worker processes)
@@ -271,8 +275,9 @@ def run_job(job: dict, args_dict: dict, variant: str, progress=None) -> dict:
     return {"folder": job["name"], "scene": seq.name, "scene_seed": seq.seed, "frames": seq.frames,
             "spp": a.spp, "ref_spp": a.ref_spp, "size": [w, h], "variant": variant,
             "defocus": seq.defocus, "motion_blur": seq.motion_blur, "source": seq.source,
-            "camera": seq.intrinsics.to_json(), "render_seconds": round(seconds, 3),
-            "seconds_per_frame": round(seconds / seq.frames, 3), **(seq.info or {})}
+            "camera": seq.intrinsics.to_json(), "render_seconds": round(per_frame * seq.frames, 3),
+            "seconds_per_frame": round(per_frame, 3), **({"resumed_frames": resumed} if resumed else {}),
+            **(seq.info or {})}
 
 
 def _run_serial(todo, args_dict, variant, bar, done):
