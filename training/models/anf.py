@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT
-from mcdenoise.training.models.common import LEAK, SampleEmbedding, bind_inputs
+from mcdenoise.training.models.common import SampleEmbedding, bind_inputs, conv3, eval_copy
 from mcdenoise.training.models.wskpn import pad_to_multiple
 from mcdenoise.training.specs import ModelSpec, SpecError, register
 
@@ -142,11 +142,6 @@ class Embedding(SampleEmbedding):
         super().__init__(groups, p.embed_width, p.embed_layers)
 
 
-def _conv(cin: int, cout: int, act: bool = True) -> nn.Module:
-    conv = nn.Conv2d(cin, cout, 3, padding=1)
-    return nn.Sequential(conv, nn.LeakyReLU(LEAK)) if act else conv
-
-
 class UNet(nn.Module):
     """Stage "unet": [e, prev_embed, history] -> the per-pixel parameters (N, K(d+2)+2, H, W)."""
 
@@ -157,15 +152,15 @@ class UNet(nn.Module):
         cin = 2 * p.embed_width + 1
         self.down = nn.ModuleList()
         for w in enc:
-            self.down.append(nn.Sequential(_conv(cin, w), _conv(w, w)))
+            self.down.append(nn.Sequential(conv3(cin, w), conv3(w, w)))
             cin = w
-        self.bottleneck = nn.Sequential(_conv(cin, bott), _conv(bott, bott))
+        self.bottleneck = nn.Sequential(conv3(cin, bott), conv3(bott, bott))
         self.up = nn.ModuleList()
         cin = bott
         outs = list(enc[1:][::-1]) + [p.head]          # decoder level widths, coarse to fine
         for j, (skip, w) in enumerate(zip(enc[::-1], outs)):
             last = j == len(outs) - 1                   # its second convolution is the output
-            self.up.append(nn.Sequential(_conv(cin + skip, w), _conv(w, p.outputs, act=False) if last else _conv(w, w)))
+            self.up.append(nn.Sequential(conv3(cin + skip, w), conv3(w, p.outputs, act=False) if last else conv3(w, w)))
             cin = w
 
     def forward(self, e, prev_embed, history):
@@ -261,9 +256,7 @@ class ANF(nn.Module):
 
     def deploy(self) -> "ANF":
         """The inference form: a copy in eval mode (nothing to fuse)."""
-        import copy
-
-        return copy.deepcopy(self).eval()
+        return eval_copy(self)
 
 
 @register("anf")

@@ -8,6 +8,8 @@ the same way (STYLE: no magic constant in ten files):
   too) and :class:`TemporalStage`: the exponential moving average with the driver's
   reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2), for models that accumulate in-graph;
 * :func:`aux_features`: the 10-channel network input [transfer(colour), albedo, normal, depth];
+* :func:`conv3` and :func:`eval_copy`: the U-Nets' 3×3 convolution with leaky ReLU, and the
+  inference form of a model with nothing to fuse;
 * :class:`SampleEmbedding`: the per-sample MLP over the ``samples`` input (ANF Eq. 1, NDLE's
   sample reducer), its features each group through its transfer;
 * :func:`accum_interface`, :func:`bind_inputs`, :func:`check_accum_state`,
@@ -113,6 +115,19 @@ def check_accum_model_spec(spec, type_name: str, layers, stages) -> bool:
         raise SpecError(f"{where}: stages must be {list(want)} for type '{type_name}', got {list(spec.stages)}")
     check_accum_state(spec, temporal, where, type_name)
     return temporal
+
+
+def conv3(cin: int, cout: int, act: bool = True) -> nn.Module:
+    """A 3×3 convolution (zero padding 1), followed by a leaky ReLU (:data:`LEAK`) if ``act``."""
+    conv = nn.Conv2d(cin, cout, 3, padding=1)
+    return nn.Sequential(conv, nn.LeakyReLU(LEAK)) if act else conv
+
+
+def eval_copy(model: nn.Module) -> nn.Module:
+    """``deploy()`` of a model with nothing to fuse: a copy in eval mode."""
+    import copy
+
+    return copy.deepcopy(model).eval()
 
 
 class SampleEmbedding(nn.Module):

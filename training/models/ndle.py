@@ -47,7 +47,7 @@ from torch import nn
 
 from mcdenoise.runtime.contract import SAMPLES_INPUT
 from mcdenoise.runtime.inputs import sample_group_channels
-from mcdenoise.training.models.common import LEAK, SampleEmbedding, bind_inputs
+from mcdenoise.training.models.common import LEAK, SampleEmbedding, bind_inputs, conv3, eval_copy
 from mcdenoise.training.specs import ModelSpec, SpecError, register
 
 #: Stages, in order (NDLE Table 3's rows).
@@ -124,10 +124,6 @@ class SampleReducer(SampleEmbedding):
         return emb, mean, rad
 
 
-def _conv3(cin: int, cout: int) -> nn.Module:
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1), nn.LeakyReLU(LEAK))
-
-
 class UNet(nn.Module):
     """Stage "unet": the mean embedding (N, E, H, W), H and W multiples of 2^levels ->
     the decoder's outputs at scales 1, 1/2, ..., 1/2^(levels−1): a tuple, finest first, of
@@ -140,13 +136,13 @@ class UNet(nn.Module):
         cin = p.embed_width
         self.down = nn.ModuleList()
         for w in enc:
-            self.down.append(nn.Sequential(_conv3(cin, w), _conv3(w, w)))
+            self.down.append(nn.Sequential(conv3(cin, w), conv3(w, w)))
             cin = w
-        self.bottleneck = nn.Sequential(_conv3(cin, bott), _conv3(bott, bott))
+        self.bottleneck = nn.Sequential(conv3(cin, bott), conv3(bott, bott))
         self.up = nn.ModuleList()
         cin = bott
         for skip in enc[::-1]:
-            self.up.append(nn.Sequential(_conv3(cin + skip, skip), _conv3(skip, skip)))
+            self.up.append(nn.Sequential(conv3(cin + skip, skip), conv3(skip, skip)))
             cin = skip
         self.widths = tuple(enc)
 
@@ -305,9 +301,7 @@ class NDLE(nn.Module):
 
     def deploy(self) -> "NDLE":
         """The inference form: a copy in eval mode (nothing to fuse)."""
-        import copy
-
-        return copy.deepcopy(self).eval()
+        return eval_copy(self)
 
 
 @register("ndle")
