@@ -81,11 +81,14 @@ class ExportReport:
         return max(self.parity.values()) if self.parity else 0.0
 
 
-def parity_error(test: np.ndarray, ref: np.ndarray, dark_fraction: float = DARK_FRACTION) -> float:
-    """Max over elements of |test − ref| / max(|ref|, dark_fraction · mean|ref|).
+def parity_error(test: np.ndarray, ref: np.ndarray, dark_fraction: float = DARK_FRACTION,
+                 allow: float = 0.0) -> float:
+    """Max over elements of max(|test − ref| − allow, 0) / max(|ref|, dark_fraction · mean|ref|).
 
     That is the max relative error on non-dark values (|ref| >= dark_fraction · mean|ref|), and
-    on dark ones the absolute error relative to that floor.  Inf/NaN anywhere gives inf.
+    on dark ones the absolute error relative to that floor; ``allow`` is an absolute error every
+    element may have for free (:func:`parity_errors`: torch float32's own worst).  Inf/NaN
+    anywhere gives inf.
     """
     test = np.asarray(test, np.float64)
     ref = np.asarray(ref, np.float64)
@@ -96,7 +99,7 @@ def parity_error(test: np.ndarray, ref: np.ndarray, dark_fraction: float = DARK_
     floor = dark_fraction * float(np.mean(np.abs(ref)))
     denom = np.maximum(np.abs(ref), floor)
     denom = np.where(denom > 0, denom, 1.0)
-    return float(np.max(np.abs(test - ref) / denom))
+    return float(np.max(np.maximum(np.abs(test - ref) - allow, 0.0) / denom))
 
 
 def unstaged_nodes(graph, stages) -> list[str]:
@@ -204,7 +207,11 @@ def _torch_outputs(model, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
 
 def parity_errors(model, run_graph, feeds: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
     """{output name: (graph error, torch float32 error)}, both :func:`parity_error` against
-    ``model`` evaluated in float64 (a copy; ``model`` itself is untouched).
+    ``model`` evaluated in float64 (a copy; ``model`` itself is untouched).  The graph's error
+    counts only what exceeds torch float32's largest absolute error in that output: a signed
+    output has elements near 0 where that much rounding is a large relative error, and which
+    element lands there decided the test (ANF's affinity features at 7 spp on an AMD EPYC host:
+    one element of 8,320 failed while the graph's largest absolute error was below torch's).
 
     run_graph: feeds (float32 arrays by input name) -> list of outputs in ``model.output_names``
     order, e.g. an onnxruntime session's ``run``.
@@ -215,7 +222,8 @@ def parity_errors(model, run_graph, feeds: dict[str, np.ndarray]) -> dict[str, t
     ref64 = _torch_outputs(copy.deepcopy(model).double().eval(),
                            {k: v.astype(np.float64) if v.dtype == np.float32 else v for k, v in feeds.items()})
     got = run_graph(feeds)
-    return {n: (parity_error(g, r64), parity_error(r32, r64))
+    return {n: (parity_error(g, r64, allow=float(np.max(np.abs(np.asarray(r32, np.float64) - r64), initial=0.0))),
+                parity_error(r32, r64))
             for n, g, r32, r64 in zip(model.output_names, got, ref32, ref64)}
 
 
