@@ -173,7 +173,9 @@ def test_validate_rejects_wrong_shapes():
 
 def test_describe_and_png(tmp_path):
     F.write_frame(tmp_path / "f.exr", _frame())
-    text = F.describe(tmp_path / "f.exr")
+    from mcdenoise.runtime.inspect import describe
+
+    text = describe(tmp_path / "f.exr")
     assert "per-sample layers: 2 samples" in text and "scene_seed: 7" in text
     F.write_png(tmp_path / "a.png", np.full((3, 4, 3), 0.5))
     data = (tmp_path / "a.png").read_bytes()
