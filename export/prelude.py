@@ -1,52 +1,62 @@
-"""The driver's per-frame temporal work as one ONNX graph: reprojection with the consistency
-test and the accumulation, exported from the very torch functions the trainer runs
-(:func:`runtime.temporal.reproject`, :func:`runtime.temporal.accumulate`), so that a
-device provider (CUDA) can run it beside the model while numpy does it on the CPU.
+"""The driver's per-frame temporal work as ONNX graphs: reprojection with the consistency test
+and the accumulation, exported from the very torch functions the trainer runs
+(:func:`runtime.temporal.reproject`, :func:`runtime.temporal.accumulate`), so that a device
+provider (CUDA) runs it beside the model, on state that never leaves the device, while numpy
+does it on the CPU.
 
-    python -m mcdenoise.export.prelude --out models/driver/prelude.onnx   # regenerate the shipped file
+    python -m mcdenoise.export.prelude --out models/driver   # regenerate the shipped files
 
-Graph inputs (float32, NCHW, batch 1, dynamic C, H, W): ``prev`` (1, C, H, W) the kept
-history (state channels and accumulated inputs stacked), ``current`` (1, C, H, W) this frame's
-values of the accumulated channels (anything for the others), ``alpha`` (1, C, 1, 1) the
-current frame's weight per channel, ``blend`` (1, C, 1, 1) 1 where a channel is accumulated,
-0 where it is model state; ``motion`` (1, 2, H, W); the guides ``cur_depth``,
-``cur_position``, ``cur_normal``, ``prev_depth``, ``prev_position``, ``prev_normal``. Outputs:
-``warped`` (1, C, H, W) (accumulated where ``blend`` is 1) and ``history`` (1, 1, H, W).
-:class:`runtime.prelude.PreludeGraph` runs it with the signature of ``reproject``.
+One graph per count K of kept tensors (1 to :data:`runtime.prelude.MAX_SLOTS`; a model's state
+tensors and accumulated inputs, each its own input, so a state output bound on the device is
+fed back as it is): ``prelude-<K>.onnx``. Inputs (float32, NCHW, batch 1, dynamic C, H, W):
+``prev<i>`` (1, C_i, H, W) kept tensor i (non-finite values read as 0: a state output kept on
+the device is never checked on the host), ``current<i>`` (1, C_i, H, W) this frame's value of
+an accumulated input (anything for model state), ``alpha`` (K,) the current frame's weight and
+``blend`` (K,) 1 where tensor i is accumulated, 0 where it is model state; ``motion``
+(1, 2, H, W); the guides ``cur_depth``, ``cur_position``, ``cur_normal``, ``prev_depth``,
+``prev_position``, ``prev_normal``. Outputs: ``warped<i>`` (accumulated where ``blend`` is 1)
+and ``history`` (1, 1, H, W). :class:`runtime.prelude.PreludeGraph` runs them with the
+signature of ``reproject``.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from mcdenoise.runtime.prelude import INPUTS, OUTPUTS
+from mcdenoise.runtime.prelude import GUIDES, MAX_SLOTS, SLOT_FILE, inputs, outputs
 
 OPSET = 17
 
 
-def _module():
+def _module(k: int):
     import torch
 
     from mcdenoise.runtime.temporal import accumulate, reproject
 
     class Prelude(torch.nn.Module):
-        def forward(self, prev, current, alpha, blend, motion, cur_depth, cur_position, cur_normal,
-                    prev_depth, prev_position, prev_normal):
-            cur = {"depth": cur_depth, "position": cur_position, "normal": cur_normal}
-            old = {"depth": prev_depth, "position": prev_position, "normal": prev_normal}
-            (warped,), history = reproject([prev], motion, cur, old)
-            acc = accumulate(current, warped, history, alpha)
-            return warped + blend * (acc - warped), history
+        def forward(self, *args):
+            prev = [torch.where(torch.isfinite(p), p, torch.zeros_like(p)) for p in args[:k]]
+            current = args[k:2 * k]
+            alpha, blend, motion = args[2 * k:2 * k + 3]
+            g = dict(zip(GUIDES, args[2 * k + 3:]))
+            cur = {n: g["cur_" + n] for n in ("depth", "position", "normal")}
+            old = {n: g["prev_" + n] for n in ("depth", "position", "normal")}
+            warped, history = reproject(prev, motion, cur, old)
+            outs = [w + blend[i] * (accumulate(c, w, history, alpha[i]) - w)
+                    for i, (w, c) in enumerate(zip(warped, current))]
+            return (*outs, history)
 
     return Prelude()
 
 
-def example(c: int = 4, h: int = 24, w: int = 32, seed: int = 0) -> dict:
-    """Plausible inputs: a slanted plane seen from a camera that moved (sub-pixel motion,
-    some taps off-screen), depth misses here and there."""
+def example(k: int = 2, h: int = 24, w: int = 32, seed: int = 0, channels=None) -> dict:
+    """Plausible inputs of the K-slot graph: a slanted plane seen from a camera that moved
+    (sub-pixel motion, some taps off-screen), depth misses here and there; ``channels`` per
+    slot (default 3, 1, 4, 2, ...)."""
     import numpy as np
 
     rng = np.random.default_rng(seed)
+    chans = list(channels) if channels is not None else [(3, 1, 4, 2)[i % 4] for i in range(k)]
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     depth = (5 + 0.05 * xs + 0.02 * ys)[None, None]
     depth[..., rng.random((h, w)) < 0.03] = 0.0
@@ -54,34 +64,37 @@ def example(c: int = 4, h: int = 24, w: int = 32, seed: int = 0) -> dict:
     nrm = np.zeros((1, 3, h, w), np.float32)
     nrm[:, 2] = -1
     motion = np.stack([np.full((h, w), 0.37), np.full((h, w), -0.21)])[None].astype(np.float32)
-    feeds = {"prev": rng.random((1, c, h, w), dtype=np.float32) * 2, "current": rng.random((1, c, h, w), dtype=np.float32),
-             "alpha": np.full((1, c, 1, 1), 0.2, np.float32),
-             "blend": (np.arange(c) % 2).astype(np.float32).reshape(1, c, 1, 1),
+    feeds = {**{f"prev{i}": rng.random((1, c, h, w), dtype=np.float32) * 2 for i, c in enumerate(chans)},
+             **{f"current{i}": rng.random((1, c, h, w), dtype=np.float32) for i, c in enumerate(chans)},
+             "alpha": np.full(k, 0.2, np.float32), "blend": (np.arange(k) % 2).astype(np.float32),
              "motion": motion, "cur_depth": depth.astype(np.float32), "cur_position": pos, "cur_normal": nrm,
              "prev_depth": depth.astype(np.float32), "prev_position": pos + np.float32(0.01), "prev_normal": nrm.copy()}
     return feeds
 
 
-def export(out: str | Path) -> Path:
-    """Write the prelude graph to ``out`` (TorchScript exporter, opset 17, dynamic C/H/W)."""
+def export(out_dir: str | Path, k: int) -> Path:
+    """Write the K-slot prelude graph into ``out_dir`` (TorchScript exporter, opset 17, dynamic
+    C_i/H/W)."""
     import torch
 
-    out = Path(out)
+    out = Path(out_dir) / SLOT_FILE.format(k)
     out.parent.mkdir(parents=True, exist_ok=True)
-    feeds = example()
-    args = tuple(torch.from_numpy(feeds[n]) for n in INPUTS)
-    axes = {n: ({1: "C", 2: "H", 3: "W"} if n in ("prev", "current", "warped") else
-                {1: "C"} if n in ("alpha", "blend") else {2: "H", 3: "W"}) for n in (*INPUTS, *OUTPUTS)}
-    torch.onnx.export(_module(), args, str(out), input_names=list(INPUTS), output_names=list(OUTPUTS),
+    feeds = example(k)
+    names_in, names_out = inputs(k), outputs(k)
+    args = tuple(torch.from_numpy(feeds[n]) for n in names_in)
+    axes = {n: ({1: f"C{n[-1]}", 2: "H", 3: "W"} if n[:-1] in ("prev", "current", "warped") else
+                {} if n in ("alpha", "blend") else {2: "H", 3: "W"}) for n in (*names_in, *names_out)}
+    torch.onnx.export(_module(k), args, str(out), input_names=list(names_in), output_names=list(names_out),
                       dynamic_axes=axes, opset_version=OPSET, dynamo=False)
     return out
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mcdenoise.export.prelude", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="ONNX file to write")
+    p.add_argument("--out", required=True, help="folder to write prelude-1.onnx ... prelude-K.onnx into")
     a = p.parse_args(argv)
-    print(f"wrote {export(a.out)}")
+    for k in range(1, MAX_SLOTS + 1):
+        print(f"wrote {export(a.out, k)}")
     return 0
 
 

@@ -32,6 +32,7 @@ from mcdenoise.runtime.contract import parse_contract
 from mcdenoise.runtime.frames import Frame, FrameError
 from mcdenoise.runtime.inputs import (RADIANCE_LAYERS, SanitizeReport, exposure_scale, frame_planes, from_planes,
                                      model_inputs, sample_inputs)
+from mcdenoise.runtime.prelude import MAX_SLOTS, PreludeGraph, device_of, run_bound
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.workers import MAX_DEFAULT_THREADS, default_threads
 
@@ -71,12 +72,16 @@ def _as_frame(frame) -> Frame:
 class Denoiser:
     """Stateful onnxruntime driver for one mcdenoise model file.  Not thread-safe."""
 
-    def __init__(self, session, contract, path: str, profile_path: str | None = None, log=None,
+    def __init__(self, session, contract, path: str, log=None,
                  autoexposure: bool = True, driver_threads: int | None = None, prelude=None):
         self.session = session
         #: What reprojects and accumulates the history: None (numpy, runtime.temporal) or the
         #: prelude graph (:class:`runtime.prelude.PreludeGraph`), which computes the same.
         self.prelude = prelude
+        #: Whether the history stays onnxruntime values on the model's device between frames
+        #: (the prelude graph then gives them on the device: ``prelude.device``).
+        self.io_binding = prelude is not None and prelude.device is not None
+        self._device = device_of(session) if self.io_binding else None
         #: Threads of the driver's own numpy stages (layer conversion, reprojection).
         self.driver_threads = default_threads() if driver_threads is None else max(1, int(driver_threads))
         self.autoexposure = autoexposure
@@ -86,7 +91,6 @@ class Denoiser:
         #: How the history is kept and fed back (one definition with the trainer's unroll).
         self.protocol = Protocol.from_contract(contract)
         self.path = path
-        self._profile_path = profile_path
         self._log = log if log is not None else (lambda msg: print(f"mcdenoise: {msg}", file=sys.stderr))
         self.report = Report()
         self.timings: list[dict[str, float]] = []
@@ -117,7 +121,7 @@ class Denoiser:
              profile: bool = False, log=None, autoexposure: bool = True,
              driver_threads: int | None = None, prelude: str = "auto",
              accumulate_alpha: float | None = None, history_spp: float | None = None,
-             settings: dict | None = None) -> "Denoiser":
+             settings: dict | None = None, io_binding: bool | None = None) -> "Denoiser":
         """Open an mcdenoise ONNX file.
 
         Args:
@@ -128,10 +132,8 @@ class Denoiser:
             :func:`runtime.workers.default_threads`).  The output does not depend on it.
           profile: record per-node times so :meth:`stage_table` can split the graph by stage.
           prelude: "numpy" reprojects and accumulates the history in numpy; "graph" with the
-            prelude graph (:mod:`runtime.prelude`) on the model's providers; "auto" (default):
-            numpy on the CPU provider (faster there: wskpn-3's reprojection 6.7 vs 10.4 ms at
-            256x256, 64 vs 179 ms at 1280x720 in a one-off run on a 2-vCPU EPYC), the graph on
-            any other.
+            prelude graphs (:mod:`runtime.prelude`) on the model's providers; "auto" (default):
+            numpy on the CPU provider (faster there, README), the graphs on any other.
           accumulate_alpha: the current frame's weight for every accumulated input and fed state
             weight, in (0, 1],
             instead of the file's (1: no accumulation; the file's history_spp rule is dropped
@@ -139,6 +141,10 @@ class Denoiser:
           history_spp: weigh a frame of known spp by spp / (spp + history_spp) instead of the
             file's rule (0: the fixed alpha); see :meth:`runtime.temporal.Protocol.alpha`.
           settings: run-time settings to start with (name -> value, see :meth:`set`).
+          io_binding: keep the history (state outputs, accumulations, guides) as onnxruntime
+            values on the model's device between frames, bound with IO binding; only the
+            frame's inputs go in and the image comes out. None (default): on where the prelude
+            graphs run on a provider other than the CPU's. The images are the same either way.
           autoexposure: scale each history's colour to :data:`runtime.inputs.AUTOEXPOSURE_KEY`
             (factor fixed at the history's first frame, so the state stays in one unit) and the
             output back: the result no longer depends on the renderer's radiance units.
@@ -153,16 +159,12 @@ class Denoiser:
         if threads:
             so.intra_op_num_threads = threads
         so.log_severity_level = 3
-        # onnxruntime's workers spin after a run, holding cores the driver's numpy stages then
-        # need: stopping them when a run ends took the 720p preprocess from 24 to 15 ms with
-        # the graph unchanged (wskpn-3, 2 threads, paired runs); spinning within a run stays.
+        # Workers spinning after a run hold cores the driver's numpy stages need (the 720p
+        # preprocess 24 -> 15 ms with this, wskpn-3, 2 threads, paired runs).
         so.add_session_config_entry("session.force_spinning_stop", "1")
-        prof = None
         if profile:
             so.enable_profiling = True
-            # A profiled session that fails to load logs "Could not write a profile because no
-            # model was loaded" at error level when it is destroyed, beside the ModelFileError
-            # that already says what is wrong; load failures raise either way.
+            # else a failed load also logs "Could not write a profile" beside the ModelFileError
             so.log_severity_level = 4
             so.profile_file_prefix = os.path.join(tempfile.mkdtemp(prefix="mcdenoise-prof-"), "ort")
         try:
@@ -177,9 +179,8 @@ class Denoiser:
         except ValueError as e:
             raise ModelFileError(f"{path}: {e}") from None
         if contract.samples_input is not None:
-            # onnxruntime's memory pattern, planned at the first run, is allocated beside the
-            # arena the first run filled: ndle-s at 1280x720 x 8 spp held 7.3 GB after two runs
-            # with it, 3.1 GB without it, and ran no slower (9.5 vs 10.5 s, one thread).
+            # onnxruntime's memory pattern is allocated beside the arena the first run filled
+            # (ndle-s, 720p x 8 spp: 7.3 GB after two runs with it, 3.1 GB without, no slower).
             so.enable_mem_pattern = False
             sess = ort.InferenceSession(path, so, providers=providers or ["CPUExecutionProvider"])
         if driver_threads is None and threads:
@@ -187,11 +188,16 @@ class Denoiser:
         if prelude not in ("auto", "graph", "numpy"):
             raise ValueError(f"prelude must be auto, graph or numpy, got {prelude!r}")
         graph = None
-        if prelude == "graph" or (prelude == "auto" and sess.get_providers()[0] != "CPUExecutionProvider"):
-            from mcdenoise.runtime.prelude import PreludeGraph
-
-            graph = PreludeGraph(providers=sess.get_providers(), threads=threads)
-        den = cls(sess, contract, path, profile_path=prof, log=log, autoexposure=autoexposure,
+        on_device = sess.get_providers()[0] != "CPUExecutionProvider"
+        io_binding = on_device and prelude != "numpy" if io_binding is None else bool(io_binding)
+        if io_binding and prelude == "numpy":
+            raise ValueError("io_binding keeps the history on the device: it needs prelude 'graph' or 'auto'")
+        if io_binding or prelude == "graph" or (prelude == "auto" and on_device):
+            graph = PreludeGraph(providers=sess.get_providers(), threads=threads,
+                                 device=device_of(sess) if io_binding else None)
+        if graph is not None and len(contract.state) + len(contract.accumulate) > MAX_SLOTS:
+            raise ValueError(f"{path}: the prelude graphs keep at most {MAX_SLOTS} tensors; use prelude='numpy'")
+        den = cls(sess, contract, path, log=log, autoexposure=autoexposure,
                   driver_threads=driver_threads, prelude=graph)
         if accumulate_alpha is not None and not 0 < accumulate_alpha <= 1:
             raise ValueError(f"accumulate_alpha must be in (0, 1], got {accumulate_alpha}")
@@ -275,6 +281,11 @@ class Denoiser:
                                   scale=exposed)
             feeds_by_layer = model_inputs(planes, layers, fr.meta)
             guides = self._guide_buffers(fr, planes)
+            if self.io_binding:
+                import onnxruntime as ort   # uploaded once; kept as the next frame's previous guides
+
+                guides = {k: ort.OrtValue.ortvalue_from_numpy(np.ascontiguousarray(v), *self._device)
+                          for k, v in guides.items()}
             if self._state is None:
                 # A new history: fix its exposure now, so the state stays in one unit.
                 self.exposure = float(exposure_scale(feeds_by_layer["color"]).ravel()[0]) if self.autoexposure else 1.0
@@ -298,7 +309,10 @@ class Denoiser:
         with tm.stage(timing.REPROJECT):
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds, fr.color_spp)
         with tm.stage(timing.GRAPH):
-            named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
+            if self.io_binding:
+                named = run_bound(self.session, feeds, self._device, host=("output",))
+            else:
+                named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
         with tm.stage(timing.POSTPROCESS):
             out = named["output"][0]                                   # (3, H, W)
             inv = np.float32(1.0 / self.exposure)
@@ -348,7 +362,10 @@ class Denoiser:
     @staticmethod
     def _keep(arr: np.ndarray) -> np.ndarray:
         """A state output as the history keeps it: float32, non-finite values 0 (they must never
-        reach the next frame)."""
+        reach the next frame; one kept on the device as an onnxruntime value is kept as it is,
+        and the prelude graph reads its non-finite values as 0)."""
+        if not isinstance(arr, np.ndarray):
+            return arr
         arr = arr.astype(np.float32, copy=False)
         if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
             arr = np.where(np.isfinite(arr), arr, np.float32(0.0))
@@ -368,7 +385,7 @@ class Denoiser:
             self._say("frames carry no motion vectors: assuming a static camera", once_key="nomotion")
             motion = np.zeros((1, 2, h, w), np.float32)
         kept = self.protocol.follow(feeds, self._state, motion, guides, self._guides,
-                                    contiguous=lambda a: np.ascontiguousarray(a, dtype=np.float32),
+                                    contiguous=lambda a: np.ascontiguousarray(a, np.float32) if isinstance(a, np.ndarray) else a,
                                     reproject_fn=self.prelude, threads=self.driver_threads, spp=spp)
         return kept
 

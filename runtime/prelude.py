@@ -1,7 +1,9 @@
-"""The temporal prelude as an onnxruntime graph (exported by ``mcdenoise.export.prelude`` from
-the torch path of :func:`runtime.temporal.reproject`): the same arithmetic the driver runs in
-numpy, for a provider that keeps frames on its device. :class:`PreludeGraph` has the call
-signature of ``reproject``, so :meth:`runtime.temporal.Protocol.follow` takes it as is."""
+"""The temporal prelude as onnxruntime graphs, one per count K of kept tensors (exported by
+``mcdenoise.export.prelude`` from the torch path of :func:`runtime.temporal.reproject`): the
+arithmetic the driver runs in numpy, for a provider that keeps frames on its device.
+:class:`PreludeGraph` has ``reproject``'s signature (so :meth:`runtime.temporal.Protocol.follow`
+takes it) and takes and gives host arrays or onnxruntime values on the device
+(:func:`run_bound`), so a history need not leave the device between frames."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,38 +11,92 @@ import numpy as np
 from mcdenoise.runtime import data_path
 from mcdenoise.runtime.temporal import reproject
 
-#: Graph inputs and outputs, in order (see mcdenoise.export.prelude).
-INPUTS = ("prev", "current", "alpha", "blend", "motion", "cur_depth", "cur_position", "cur_normal",
-          "prev_depth", "prev_position", "prev_normal")
-OUTPUTS = ("warped", "history")
-#: The shipped prelude graph.
-SHIPPED = data_path("models", "driver", "prelude.onnx")
+#: Kept tensors (state and accumulated inputs) the shipped graphs take: one graph per count.
+MAX_SLOTS = 4
+#: The K-slot graph's file name.
+SLOT_FILE = "prelude-{}.onnx"
+#: Guide inputs, after ``prev<i>``, ``current<i>``, ``alpha``, ``blend``, ``motion``.
+GUIDES = ("cur_depth", "cur_position", "cur_normal", "prev_depth", "prev_position", "prev_normal")
+
+
+def inputs(k: int) -> tuple[str, ...]:
+    """Input names of the K-slot graph, in order (mcdenoise.export.prelude says what they are)."""
+    return (*(f"prev{i}" for i in range(k)), *(f"current{i}" for i in range(k)), "alpha", "blend", "motion", *GUIDES)
+
+
+def outputs(k: int) -> tuple[str, ...]:
+    return (*(f"warped{i}" for i in range(k)), "history")
+
+
+def device_of(session) -> tuple[str, int]:
+    """(onnxruntime device type, id) where ``session``'s first provider keeps its values."""
+    provider = session.get_providers()[0]
+    if provider == "CPUExecutionProvider":
+        return "cpu", 0
+    opts = session.get_provider_options().get(provider, {})
+    return provider.replace("ExecutionProvider", "").lower(), int(opts.get("device_id", 0))
+
+
+def run_bound(session, feeds: dict, device: tuple[str, int] | None, host: tuple = ()) -> dict:
+    """``session`` run with IO binding: ``feeds`` host arrays (copied to the device by
+    onnxruntime) or ``OrtValue``s (bound as they are); outputs stay on ``device`` as
+    ``OrtValue``s, except those named in ``host`` (and all when ``device`` is None), which come
+    back as numpy arrays. Returns {output name: value}."""
+    import onnxruntime as ort
+
+    b = session.io_binding()
+    for name, v in feeds.items():
+        if isinstance(v, ort.OrtValue):
+            b.bind_ortvalue_input(name, v)
+        else:
+            b.bind_cpu_input(name, np.ascontiguousarray(v, np.float32) if v.dtype != np.int64 else v)
+    for name in (names := [o.name for o in session.get_outputs()]):
+        b.bind_output(name, *(("cpu",) if device is None or name in host else device))
+    session.run_with_iobinding(b)
+    return {n: (v.numpy() if device is None or n in host else v) for n, v in zip(names, b.get_outputs())}
 
 
 class PreludeGraph:
-    """``reproject(states, motion, cur, prev, blend=...)`` run by onnxruntime on ``providers``.
-    Frames without world positions or normals (the graph tests both) go to the numpy path."""
+    """``reproject(states, motion, cur, prev, blend=...)`` run by onnxruntime on ``providers``;
+    with ``device`` (a :func:`device_of` pair) the warped states and the history stay there as
+    ``OrtValue``s, else they come back as numpy arrays. Frames without world positions or
+    normals (the graphs test both) go to the numpy path."""
 
-    def __init__(self, path=SHIPPED, providers=None, threads: int = 0):
-        import onnxruntime as ort
+    def __init__(self, folder=None, providers=None, threads: int = 0, device: tuple[str, int] | None = None):
+        self.folder = folder or data_path("models", "driver")
+        self.providers = providers or ["CPUExecutionProvider"]
+        self.threads, self.device = threads, device
+        self.sessions: dict[int, object] = {}
 
-        so = ort.SessionOptions()
-        so.log_severity_level = 3
-        if threads:
-            so.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(str(path), so, providers=providers or ["CPUExecutionProvider"])
+    def session(self, k: int):
+        if not 1 <= k <= MAX_SLOTS:
+            raise ValueError(f"the prelude graphs keep 1 to {MAX_SLOTS} tensors; this model keeps {k}")
+        if k not in self.sessions:
+            import onnxruntime as ort
+
+            so = ort.SessionOptions()
+            so.log_severity_level = 3
+            so.add_session_config_entry("session.force_spinning_stop", "1")   # as the model's (denoiser.py)
+            if self.threads:
+                so.intra_op_num_threads = self.threads
+            self.sessions[k] = ort.InferenceSession(str(self.folder / SLOT_FILE.format(k)), so, providers=self.providers)
+        return self.sessions[k]
 
     def __call__(self, states, motion, cur: dict, prev: dict, blend=None, threads: int = 1):
         guides = ("depth", "position", "normal")
         if not all(g in cur and g in prev for g in guides):
-            return reproject(states, motion, cur, prev, threads=threads, blend=blend)
-        blend = list(blend) if blend is not None else [None] * len(states)
-        ch = [s.shape[1] for s in states]
-        current = [np.zeros_like(s) if b is None else b[0] for s, b in zip(states, blend)]
-        alpha = np.concatenate([np.full(c, 0.0 if b is None else b[1], np.float32) for c, b in zip(ch, blend)])
-        mask = np.concatenate([np.full(c, 0.0 if b is None else 1.0, np.float32) for c, b in zip(ch, blend)])
-        feeds = {"prev": np.concatenate(states, axis=1), "current": np.concatenate(current, axis=1),
-                 "alpha": alpha.reshape(1, -1, 1, 1), "blend": mask.reshape(1, -1, 1, 1), "motion": motion,
+            # Kept on the device: fetched, non-finite -> 0 as the graphs read them.
+            host = lambda a: a if isinstance(a, np.ndarray) else np.nan_to_num(a.numpy(), nan=0.0, posinf=0.0, neginf=0.0)  # noqa: E731
+            return reproject([host(s) for s in states], motion, {g: host(v) for g, v in cur.items()},
+                             {g: host(v) for g, v in prev.items()}, threads=threads, blend=blend)
+        k = len(states)
+        blend = list(blend) if blend is not None else [None] * k
+        feeds = {**{f"prev{i}": s for i, s in enumerate(states)},
+                 # model state's "current" is never read (blend 0), but must broadcast
+                 **{f"current{i}": np.zeros((1, 1, 1, 1), np.float32) if b is None else b[0]
+                    for i, b in enumerate(blend)},
+                 "alpha": np.array([0.0 if b is None else b[1] for b in blend], np.float32),
+                 "blend": np.array([0.0 if b is None else 1.0 for b in blend], np.float32), "motion": motion,
                  **{f"cur_{g}": cur[g] for g in guides}, **{f"prev_{g}": prev[g] for g in guides}}
-        warped, history = self.session.run(list(OUTPUTS), {k: np.ascontiguousarray(v, np.float32) for k, v in feeds.items()})
-        return list(np.split(warped, np.cumsum(ch)[:-1], axis=1)), history
+        out = run_bound(self.session(k), feeds, self.device)
+        return [out[f"warped{i}"] for i in range(k)], out["history"]

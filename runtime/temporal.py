@@ -35,10 +35,8 @@ DEPTH_TOLERANCE = 0.1
 #: Pixels whose consistent bilinear weight sums to less than this get no history.
 MIN_WEIGHT = 1e-3
 
-
-#: numpy processes this many output rows at a time on one thread (all four taps of a band
-#: stacked), so a band's temporaries stay near the core (1280x720: 8 rows 61 ms, 16 rows 61,
-#: 24 rows 62).
+#: Output rows numpy processes at a time on one thread, so a band's temporaries stay near the
+#: core (1280x720: 8 rows 61 ms, 16 rows 61, 24 rows 62).
 BAND_ROWS = 12
 #: Band height (about) when worker threads share the frame: each numpy call must do enough
 #: work to pay for taking the GIL back (1280x720, 2 threads each taking 360 rows: 16-row bands
@@ -132,7 +130,8 @@ class Protocol:
         """Each state weight input: this frame's weight (:meth:`alpha`) as (N, 1, 1, 1)."""
         for inp, alpha, hs in self.weights:
             a = self.alpha(("", "", alpha, hs), spp)
-            feeds[inp] = _zeros(like, (like.shape[0], 1, 1, 1)) + a
+            n = like.shape()[0] if callable(like.shape) else like.shape[0]   # an OrtValue's shape is a method
+            feeds[inp] = _zeros(like, (n, 1, 1, 1)) + a
 
     @staticmethod
     def accum_key(graph_input: str) -> str:
@@ -186,8 +185,11 @@ class Protocol:
 
 
 def _zeros(like, shape):
-    """Zeros of ``shape`` with ``like``'s array type, dtype and device."""
-    return np.zeros(shape, like.dtype) if isinstance(like, np.ndarray) else like.new_zeros(shape)
+    """Zeros of ``shape`` with ``like``'s array type, dtype and device (float32 numpy for an
+    onnxruntime value: onnxruntime copies it where it is bound)."""
+    if isinstance(like, np.ndarray) or not hasattr(like, "new_zeros"):
+        return np.zeros(shape, getattr(like, "dtype", np.float32))
+    return like.new_zeros(shape)
 
 
 def accumulate(current, prev, history, alpha: float):
@@ -256,29 +258,20 @@ def _split_states(acc, states):
 
 
 def _reproject_numpy(states, motion, cur, prev, use_pos: bool, use_nrm: bool, threads: int = 1, blend=()):
-    """numpy :func:`reproject`: the arithmetic of :func:`_reproject_rows`, laid out for speed
-    on the driver's CPU (1280x720, sub-pixel motion, this project's 2-vCPU machine: 165 ms
-    with per-tap gathers of a stacked (C, H*W) array over 32-row bands on two threads, 125 ms
-    planar as below, 100 ms with the preallocated buffers, 58 ms with 64-row bands split
-    between two threads, 52 ms in equal shares, 46 ms with the four taps stacked, 42 ms with
-    one unsigned compare per bounds test).
+    """numpy :func:`reproject`: the arithmetic of :func:`_reproject_rows`, laid out for speed on
+    the driver's CPU (1280x720, sub-pixel motion, 2 vCPUs: 165 ms with per-tap gathers of a
+    stacked (C, H*W) array, 42 ms as below).
 
     * Planar: every guide and state channel is a contiguous (H*W,) plane gathered with one 1-D
-      ``np.take`` per band (all four taps at once), and every test is plane arithmetic.
-      Gathering along axis 1 of a (C, H*W) stack costs 2-3x more; a channels-last table makes
-      the tests strided (2-3x slower per element).
-    * Taps stacked (4, rows, W): a quarter of the numpy calls, and of the hand-offs of the
-      GIL between the worker threads (one thread: 75 -> 65 ms; two: 52 -> 46 ms).
-    * Bands of rows keep a band's temporaries near the core, and the temporaries are
-      preallocated per worker and reused (``out=``): no allocation per operation.
-    * A tap whose bilinear weight is 0 over a whole band (integer or zero motion: a static
-      camera) is skipped: its consistent weight would be 0 anyway.
-    * With ``threads`` > 1, each thread takes one contiguous share of the rows in bands of
-      about :data:`THREADED_BAND_ROWS` rows (numpy releases the GIL inside each call; small
-      bands made two threads slower than one).
-    * A blended state (:func:`accumulate`) is blended band by band while its warped values
-      are in cache: 1280x720, 3 channels, 2 threads: +2 ms here instead of a 6 ms stage of
-      full-frame passes in the model graph.
+      ``np.take`` per band (all four taps at once; gathering along axis 1 of a (C, H*W) stack
+      costs 2-3x more, a channels-last table makes the tests strided).
+    * Taps stacked (4, rows, W): a quarter of the numpy calls and of the GIL hand-offs.
+    * Bands of rows keep a band's temporaries near the core; they are preallocated per worker.
+    * A tap whose bilinear weight is 0 over a whole band (integer or zero motion) is skipped.
+    * With ``threads`` > 1 each thread takes one contiguous share of the rows in bands of about
+      :data:`THREADED_BAND_ROWS` rows (numpy releases the GIL inside each call).
+    * A blended state (:func:`accumulate`) is blended band by band while its warped values are
+      in cache (720p, 3 channels, 2 threads: +2 ms instead of a 6 ms stage in the graph).
     """
     n, _, h, w = motion.shape
     n_state = sum(st.shape[1] for st in states)

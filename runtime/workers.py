@@ -4,9 +4,8 @@ numpy releases the GIL inside each array operation, so a few threads that each r
 enough operations use more than one core; many small operations make the threads wait for
 the GIL instead.  Measured on a 2-core machine at 1280x720: layer conversion 21.5 -> 12.3 ms,
 reprojection 65 -> 46 ms with two threads.  More threads than two were not measured and
-contend for the GIL, so :func:`default_threads` stops at two.  (A helper process on shared
-memory once split the reprojection instead; it showed no gain on a second kind of machine
-and went: docs/results/history.md.)
+contend for the GIL, so :func:`default_threads` stops at two (a helper process that once
+split the reprojection went: docs/results/history.md).
 """
 from __future__ import annotations
 

@@ -579,25 +579,51 @@ def test_the_prelude_graph_gives_the_numpy_prelude(path):
     assert b.report.frames == 4 and not b.report.resets
 
 
-def test_the_shipped_prelude_graph_is_the_torch_prelude():
-    """models/driver/prelude.onnx computes what runtime.temporal's torch path computes, at two
-    sizes and channel counts other than the export's (regenerate: python -m
-    mcdenoise.export.prelude --out models/driver/prelude.onnx)."""
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+def test_the_shipped_prelude_graphs_are_the_torch_prelude(k):
+    """models/driver/prelude-<K>.onnx computes what runtime.temporal's torch path computes, at two
+    sizes and channel counts other than the export's, non-finite kept values read as 0
+    (regenerate: python -m mcdenoise.export.prelude --out models/driver)."""
     from mcdenoise.export.prelude import example
-    from mcdenoise.runtime.prelude import OUTPUTS, SHIPPED
+    from mcdenoise.runtime.prelude import PreludeGraph, outputs
     from mcdenoise.runtime.temporal import accumulate, reproject
 
-    sess = ort.InferenceSession(str(SHIPPED), providers=["CPUExecutionProvider"])
-    for c, h, w, seed in ((3, 17, 29, 1), (7, 40, 23, 2)):
-        f = example(c, h, w, seed)
-        t = {k: torch.from_numpy(v) for k, v in f.items()}
+    sess = PreludeGraph().session(k)
+    for h, w, seed in ((17, 29, 1), (40, 23, 2)):
+        f = example(k, h, w, seed, channels=[(2, 5, 1, 3)[(i + seed) % 4] for i in range(k)])
+        f["prev0"][0, 0, 3, 4] = np.nan
+        f["prev0"][0, -1, 5, 6] = np.inf
+        t = {n: torch.from_numpy(v) for n, v in f.items()}
         cur = {g: t[f"cur_{g}"] for g in ("depth", "position", "normal")}
         old = {g: t[f"prev_{g}"] for g in ("depth", "position", "normal")}
-        (warped,), hist = reproject([t["prev"]], t["motion"], cur, old)
-        want = warped + t["blend"] * (accumulate(t["current"], warped, hist, t["alpha"]) - warped)
-        got = sess.run(list(OUTPUTS), f)
-        np.testing.assert_allclose(got[0], want.numpy(), rtol=1e-5, atol=1e-6)
-        np.testing.assert_array_equal(got[1], hist.numpy())
+        prev = [t[f"prev{i}"].nan_to_num(nan=0.0, posinf=0.0, neginf=0.0) for i in range(k)]
+        warped, hist = reproject(prev, t["motion"], cur, old)
+        got = sess.run(list(outputs(k)), f)
+        for i in range(k):
+            want = warped[i] + t["blend"][i] * (accumulate(t[f"current{i}"], warped[i], hist, t["alpha"][i]) - warped[i])
+            np.testing.assert_allclose(got[i], want.numpy(), rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(got[-1], hist.numpy())
+
+
+@pytest.mark.parametrize("path", shipped_models(), ids=os.path.basename)
+def test_state_kept_on_the_device_gives_the_host_drivers_images(path):
+    """io_binding=True (what a device provider gets by default; here on the CPU provider, with
+    CPU OrtValues): the model's state outputs and the prelude graph's warped tensors stay
+    onnxruntime values between frames, never numpy arrays, and the images equal the numpy
+    driver's over a sequence with history, a camera cut and a frame without motion vectors."""
+    import onnxruntime as ort
+
+    frames = [_frame(t, 36, 52) for t in range(5)]
+    frames[3].meta["cut"] = True
+    frames[4].motion = None
+    host = Denoiser.load(path, log=lambda m: None, prelude="numpy")
+    bound = Denoiser.load(path, log=lambda m: None, io_binding=True)
+    assert bound.prelude is not None and bound.io_binding
+    for i, f in enumerate(frames):
+        np.testing.assert_allclose(bound(f), host(f), rtol=1e-5, atol=1e-6)
+        if bound.protocol.temporal and i not in (0, 3):   # a history's first frame keeps its own inputs
+            assert bound._state and all(isinstance(v, ort.OrtValue) for v in bound._state.values())
+    assert [r[1] for r in bound.report.resets] == [r[1] for r in host.report.resets] == ["camera cut"]
 
 
 def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_file):

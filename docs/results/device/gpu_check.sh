@@ -5,7 +5,9 @@
 #   pip download --no-deps -d .gpu/wheels onnxruntime-gpu OpenEXR pyoidn
 # (onnxruntime-gpu is large; the lean carry limit is 64 MiB, so check the size first).
 # Writes to $OUT: bench (mcdenoise bench --device cuda) and driver.txt (whole frames through
-# the driver at 1280x720, numpy prelude against the prelude graph on the device).
+# the driver at 1280x720: numpy prelude with the state on the host, the prelude graphs with the
+# state on the host, and the default on a device, the prelude graphs with the state kept on the
+# device with IO binding; each row's graph time beside its whole frame).
 set -euo pipefail
 site="$PWD/.gpu/site"
 mkdir -p "$site" "$OUT"
@@ -25,13 +27,14 @@ from mcdenoise.runtime.frames import Frame
 from mcdenoise.training.harness import synthetic_frame
 from mcdenoise.training.methods import shipped_models
 for path in shipped_models():
-    for prelude in ("numpy", "graph"):
+    for prelude, bound in (("numpy", False), ("graph", False), ("graph", True)):
         den = Denoiser.load(path, providers=["CUDAExecutionProvider", "CPUExecutionProvider"], prelude=prelude,
-                            log=lambda m: None)
+                            io_binding=bound, log=lambda m: None)
         for t in range(25):
             den(Frame(**synthetic_frame(1280, 720, t)))
         rows = den.timings[5:]
         med = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
-        print(path, prelude, den.session.get_providers()[0], {k: round(v, 2) for k, v in med.items()})
+        print(path, prelude, "io_binding" if bound else "host state", den.session.get_providers()[0],
+              {k: round(v, 2) for k, v in med.items()})
 PY
 cat "$OUT/driver.txt"
