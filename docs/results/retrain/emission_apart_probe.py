@@ -1,0 +1,36 @@
+"""Each shipped model on data/curves-test at 1 spp as the frames are, and with the first-hit
+emission filtered apart at inference (no retraining): the colour fed is the colour less the
+emission (per pixel, the mean over samples of radiance x emissive flag), and the emission is
+added back to the output. relMSE, PSNR, output/reference mean.
+
+    python docs/results/retrain/emission_apart_probe.py
+"""
+from dataclasses import replace
+
+import numpy as np
+
+from mcdenoise.training.evaluate import read_sequences
+from mcdenoise.training.methods import load_method
+from mcdenoise.training.metrics import RELMSE_EPS, psnr
+from mcdenoise.training.testsets import at_spp
+
+seqs = read_sequences("data/curves-test", False)
+for path in ("models/wskpn-6.onnx", "models/wskpn-3.onnx", "models/nbg-2l-3g.onnx", "oidn-high"):
+    for mode in ("as is", "emission apart"):
+        m = load_method(path, threads=2)
+        rel, ps, br = [], [], []
+        for frames in seqs:
+            m.reset()
+            for fr in frames:
+                f = at_spp(fr, 1)
+                emission = np.zeros_like(f.color)
+                if mode != "as is":
+                    emission = (f.sample_feature("radiance") * f.sample_feature("emissive")).mean(0).astype(np.float32)
+                    f = replace(f, color=np.maximum(f.color - emission, 0).astype(np.float32))
+                out = m(f) + emission
+                ref = f.reference
+                rel.append(np.mean((out - ref) ** 2 / (ref ** 2 + RELMSE_EPS)))
+                ps.append(psnr(out, ref))
+                br.append(out.mean() / ref.mean())
+        print(f"{path} {mode}: relMSE {np.mean(rel):.2f} PSNR {np.mean(ps):.2f} output/reference {np.mean(br):.3f}",
+              flush=True)
