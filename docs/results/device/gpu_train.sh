@@ -10,11 +10,16 @@
 # them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
 # spp drawn from 1..8, 8-frame windows and the temporal term, and leaves the run folder in
 # $OUT for `mcdenoise export` here (export needs onnxruntime, which the machine lacks).
+# A dry run on a CPU machine, before spending GPU minutes (what the last session checked):
+#   OUT=/tmp/gpu-dry DEVICE=cpu VARIANT=auto SIZE=64x64 REF_SPP=16 bash docs/results/device/gpu_train.sh wskpn-3,ndle-s 6 0.3
+# (2026-12-02, 2 vCPUs: render 79 s, trains 46 and 74 s, both run folders exported here; with one
+# scene the trainer stops at once: its validation split, by scene seed, is empty)
 set -euo pipefail
 spec=${1:-wskpn-6}; scenes=${2:-32}; minutes=${3:-4}
+device=${DEVICE:-cuda}; variant=${VARIANT:-cuda_ad_rgb}; size=${SIZE:-256x256}; ref_spp=${REF_SPP:-256}
 site=/tmp/mcdenoise-site
 mkdir -p "$site/mcdenoise" "$OUT"
-python -m pip install -q --no-index --no-deps --target "$site" .gpu/wheels/*.whl
+if [ -d .gpu/wheels ]; then python -m pip install -q --no-index --no-deps --target "$site" .gpu/wheels/*.whl; fi
 # The package without building it: its namespace as links to the checkout's folders
 # (runtime.data_path resolves the links, so the shipped data is found in the checkout).
 cp mcdenoise/__init__.py "$site/mcdenoise/"
@@ -23,15 +28,15 @@ export PYTHONPATH="$site"
 mcd() { python -m mcdenoise.runtime.cli "$@"; }
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader | tee "$OUT/gpu.txt" || true
 start=$(date +%s)
-mcd render --out /tmp/data/shard-10 --scenes "$scenes" --frames 8 --size 256x256 --spp 8 --ref-spp 256 \
-  --seed 10 --enclosed 0.5 --variant cuda_ad_rgb --workers 2 2> "$OUT/render.log"
+mcd render --out /tmp/data/shard-10 --scenes "$scenes" --frames 8 --size "$size" --spp 8 --ref-spp "$ref_spp" \
+  --seed 10 --enclosed 0.5 --variant "$variant" --workers 2 2> "$OUT/render.log"
 echo "render: $(( $(date +%s) - start )) s for $scenes scenes" | tee "$OUT/times.txt"
 cp /tmp/data/shard-10/manifest.json "$OUT/manifest.json"
 for one in ${spec//,/ }; do
   # per-frame models (NDLE) train on single frames; the temporal ones on 8-frame windows
   window=8; if grep -q '^window = 1' "models_spec/$one.toml"; then window=1; fi
   start=$(date +%s)
-  mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device cuda --minutes "$minutes" --steps 1000000 \
+  mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
