@@ -122,6 +122,24 @@ def test_shards_side_by_side_merge_and_a_repeated_seed_is_an_error(tiny_dataset,
         discover(tmp_path / "merged")
 
 
+def test_a_sequence_still_rendering_is_left_out(tiny_dataset, tmp_path):
+    """A folder with the renderer's unfinished-sequence marker (being rendered, or interrupted
+    and to be resumed) is not part of the data set; once the marker goes, it is."""
+    import shutil
+
+    from mcdenoise.training.dataset import PARTIAL
+
+    seqs = discover(tiny_dataset)
+    root = tmp_path / "data"
+    for s in seqs:
+        shutil.copytree(s.folder, root / os.path.basename(s.folder))
+    marker = root / os.path.basename(seqs[-1].folder) / PARTIAL
+    marker.write_text("{}")
+    assert [s.seed for s in discover(root)] == [s.seed for s in seqs[:-1]]
+    marker.unlink()
+    assert [s.seed for s in discover(root)] == [s.seed for s in seqs]
+
+
 def test_per_sample_items_share_one_spp_per_batch_and_rotate_normals_with_the_image(tiny_dataset):
     """A per-sample model's items: its ``samples`` input (S, F, c, c) per frame with the S the
     batch drew; under every image symmetry the samples' screen normals stay consistent with

@@ -44,11 +44,18 @@ class SequenceInfo:
     spp: int
 
 
+#: The marker ``mcdenoise render`` keeps in a sequence folder while the sequence is unfinished
+#: (training.render.command: being rendered, or interrupted and to be resumed).
+PARTIAL = ".partial.json"
+
+
 def discover(root: str | os.PathLike) -> list[SequenceInfo]:
     """All sequences under ``root``, sorted by scene seed: folders holding frame_*.exr, in
     ``root`` or one level down, so that shards rendered apart (each ``mcdenoise render --out
     <root>/<shard> --seed <its own>``, on one machine or several) merge by sitting side by side.
-    A scene seed found twice is an error (two shards rendered with the same --seed)."""
+    A scene seed found twice is an error (two shards rendered with the same --seed).  A
+    sequence still being rendered (its folder holds :data:`PARTIAL`) is left out, so training
+    can read the finished part of a data set while the rest renders."""
     root = os.fspath(root)
     if not os.path.isdir(root):
         raise FrameError(f"{root}: dataset folder does not exist")
@@ -62,7 +69,7 @@ def discover(root: str | os.PathLike) -> list[SequenceInfo]:
     seqs, seen = [], {}
     for folder in candidates:
         paths = frame_paths(folder)
-        if not paths:
+        if not paths or os.path.exists(os.path.join(folder, PARTIAL)):
             continue
         meta = read_meta(paths[0])
         seed = meta.get("scene_seed", meta.get("seed"))

@@ -17,6 +17,7 @@ import sys
 import time
 
 from mcdenoise.runtime.args import add_seed, add_size
+from mcdenoise.training.dataset import PARTIAL
 from mcdenoise.training.render.variant import VARIANTS
 
 #: Scene seed = --seed * SCENE_STRIDE + scene index, so held-out splits can be made by seed
@@ -210,9 +211,6 @@ def _sequence(mi, a: argparse.Namespace, job: dict, folder: str):
                                getattr(a, "aperture_scale", 1.0), getattr(a, "floor", "scene"),
                                getattr(a, "enclosed", 0.0))
     return load_procedural(mi, spec, folder, job["frames"], a.spp)
-
-
-PARTIAL = ".partial.json"
 
 
 def _resume_frames(folder: str, key: dict, overwrite: bool):
