@@ -180,7 +180,7 @@ class Denoiser:
             raise ModelFileError(f"{path}: {e}") from None
         if contract.samples_input is not None:
             # onnxruntime's memory pattern is allocated beside the arena the first run filled
-            # (ndle-s, 720p x 8 spp: 7.3 GB after two runs with it, 3.1 GB without, no slower).
+            # (ndle-s, 720p x 8 spp: 8.2 GB after two runs with it, 4.1 GB without, no slower).
             so.enable_mem_pattern = False
             sess = ort.InferenceSession(path, so, providers=providers or ["CPUExecutionProvider"])
         if driver_threads is None and threads:

@@ -143,7 +143,7 @@ def test_parameter_count_is_what_the_model_card_says():
 def test_later_frames_do_not_grow_a_per_sample_models_memory(ndle):
     """onnxruntime's memory pattern, planned at the first run, is allocated beside the arena that
     run filled; with it a per-sample model's second frame held about twice the first's working
-    memory (ndle-s at 1280x720 x 8 spp: 3.0 then 7.3 GB). The driver turns it off for per-sample
+    memory (ndle-s at 1280x720 x 8 spp: 4.0 then 8.2 GB, docs/results/ndle/mem_pattern.py). The driver turns it off for per-sample
     models: the peak resident set after three frames stays near the one after the first."""
     import subprocess
     import sys
