@@ -34,6 +34,27 @@ def test_resume_continues_exactly(tiny_dataset, tmp_path):
     assert any(not torch.equal(fresh[k], a[k]) for k in a if a[k].dtype.is_floating_point)
 
 
+def test_init_starts_a_new_run_from_another_runs_weights(tiny_dataset, tmp_path, capsys):
+    # A later sitting continues training on other shards: a new run, seeded by the old one's state.
+    train("wskpn-3", tiny_dataset, tmp_path / "a", steps=2, **KW)
+    train("wskpn-3", tiny_dataset, tmp_path / "b", steps=0, init=str(tmp_path / "a"), **KW)
+    a, b = _weights(tmp_path / "a"), _weights(tmp_path / "b")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    train("wskpn-3", tiny_dataset, tmp_path / "c", steps=2, init=str(tmp_path / "b"), **KW)
+    c = _weights(tmp_path / "c")
+    assert any(not torch.equal(a[k], c[k]) for k in a if a[k].dtype.is_floating_point)
+    cfg = json.loads((tmp_path / "c" / runs.CONFIG_FILE).read_text())
+    assert cfg["init"]["run"] == str((tmp_path / "b").resolve()) and cfg["init"]["step"] == 0
+    assert cfg["init"]["chain_steps"] == 2     # b took none of its own, a took 2
+    out = tmp_path / "d"
+    assert main(["train", "nbg-2l-1g", "--data", tiny_dataset, "--out", str(out), "--init", str(tmp_path / "a")]) == 2
+    assert "trained wskpn-3, not nbg-2l-1g" in capsys.readouterr().err and not out.exists()
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "c"), "--resume",
+                 "--init", str(tmp_path / "a")]) == 2
+    assert "give one of them" in capsys.readouterr().err
+
+
 def test_run_folder_is_the_record_and_exports(tiny_dataset, tmp_path):
     run = tmp_path / "run"
     row = train("wskpn-3", tiny_dataset, run, steps=2, **KW)

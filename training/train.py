@@ -158,6 +158,9 @@ def add_arguments(p):
     p.add_argument("--minutes", type=float, default=None, help="wall-clock budget (default: spec)")
     p.add_argument("--steps", type=int, default=None, help="optimiser steps (default: spec)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
+    p.add_argument("--init", default=None, metavar="RUN",
+                   help="start a new run from RUN's weights and optimiser state (same spec), e.g. to "
+                        "continue training on shards rendered in a later sitting; its steps count from 0")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--crop", type=int, default=None)
     p.add_argument("--window", type=int, default=None,
@@ -231,8 +234,13 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           val_every: int = 0, quiet: bool = False, window: int | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
-          lr_schedule: str | None = None) -> dict:
-    """Train and return the final metrics row.  See module docstring."""
+          lr_schedule: str | None = None, init: str | None = None) -> dict:
+    """Train and return the final metrics row.  See module docstring.
+
+    ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
+    data, budget and schedule are this run's own, the step count starts at 0, and the config
+    records the source run and its step (``init``), so a chain of sittings on different shards
+    stays traceable."""
     import torch
 
     if window is not None and window < 1:
@@ -255,6 +263,9 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if threads:
         torch.set_num_threads(threads)
     run = Path(out)
+    if init is not None and resume:
+        raise ValueError("--init starts a new run; --resume continues one: give one of them")
+    init_ckpt = None if init is None else _init_checkpoint(init, spec_name)
     if resume:
         if not (run / runs.CONFIG_FILE).exists():
             raise FileNotFoundError(f"{run}: nothing to resume (no {runs.CONFIG_FILE})")
@@ -283,6 +294,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "test_data": os.path.abspath(test_data) if test_data else None,
+            "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
+                                               "chain_steps": init_ckpt["chain_steps"]},
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         _check_schedule(config)     # before the run folder exists
@@ -325,6 +338,12 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         opt.load_state_dict(ckpt["optimizer"])
         step, epoch, pos, elapsed = ckpt["step"], ckpt["epoch"], ckpt["pos"], ckpt["elapsed"]
         torch.set_rng_state(ckpt["torch_rng"].cpu())
+    elif init_ckpt is not None:
+        try:
+            model.load_state_dict(init_ckpt["model"])
+        except RuntimeError as e:
+            raise ValueError(f"--init {init}: its weights do not fit spec {spec.name} ({str(e).splitlines()[0]})") from None
+        opt.load_state_dict(init_ckpt["optimizer"])
     forward = model
     if world > 1:
         import torch.distributed as dist
@@ -410,6 +429,24 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     return row
 
 
+def _init_checkpoint(init: str, spec_name: str) -> dict:
+    """The checkpoint of run folder ``init``, checked to be of spec ``spec_name``, with
+    ``chain_steps``: the steps it and the runs it started from took together."""
+    import torch
+    from mcdenoise.training.specs import load_spec
+
+    src = Path(init)
+    if not (src / runs.CHECKPOINT_FILE).exists():
+        raise FileNotFoundError(f"--init {src}: no {runs.CHECKPOINT_FILE} there")
+    want = load_spec(spec_name).name
+    cfg = json.loads((src / runs.CONFIG_FILE).read_text())
+    if cfg["spec"] != want:
+        raise ValueError(f"--init {src}: that run trained {cfg['spec']}, not {want}")
+    ckpt = torch.load(src / runs.CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    ckpt["chain_steps"] = ckpt["step"] + ((cfg.get("init") or {}).get("chain_steps") or 0)
+    return ckpt
+
+
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
               batch_size: int = 1, window: int = 1, device: str = "cpu") -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
@@ -431,6 +468,6 @@ def main(args) -> int:
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
-                lr_schedule=args.lr_schedule)
+                lr_schedule=args.lr_schedule, init=args.init)
     print(json.dumps(row, indent=2))
     return 0
