@@ -5,7 +5,9 @@
 #   python -m mcdenoise.training.carry --out .gpu/wheels --variants cuda_ad_rgb   # ~55 MB (Mitsuba stripped)
 # then, with the device tool (carry [".gpu"]; the tracked tree is ~8 MB more):
 #   bash docs/results/device/gpu_train.sh SPEC[,SPEC...] SCENES MINUTES
-# (several specs train one after another on the same rendered shard, MINUTES each)
+# (several specs train one after another on the same rendered shard, MINUTES each; with one
+# spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
+# docs/results/scale, so a GPU session continues the CPU sittings' chain)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
 # them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
 # spp drawn from 1..8, 8-frame windows and the temporal term, and leaves the run folder in
@@ -38,6 +40,7 @@ for one in ${spec//,/ }; do
   start=$(date +%s)
   mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
+    ${INIT:+--init "$INIT"} \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
   tail -n 3 "$OUT/train-$one.log"
