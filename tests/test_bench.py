@@ -72,6 +72,16 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
     assert {r["model"] for r in stages} == set(methods)
     flops = _rows(out / "bench_flops.csv")
     assert {r["method"] for r in flops} >= set(models)
+    # per-sample models timed again at 1, 2, 4, 8 spp, every stage (no speed is asserted: timing
+    # belongs in the bench's numbers, not in a unit test's pass or fail)
+    scaling = md[md.index("## Per-sample models against samples per pixel, 64x64"):]
+    for m, stages in (("anf-s", ("embedding", "unet", "kernels")),
+                      ("ndle-s", ("sample_reducer", "unet", "sample_partitioner", "layer_filtering"))):
+        table = scaling[scaling.index(f"{m}:"):].split("\n\n")[1].splitlines()
+        assert table[0] == "| stage | 1 spp | 2 spp | 4 spp | 8 spp | 8/1 |"
+        rows = {r.split(" | ")[0][2:]: r.split(" | ")[1:] for r in table[2:]}
+        for st in stages + ("total",):
+            assert all(float(v) > 0 for v in rows[st][:4]), (m, st, rows[st])
     # peak memory, each method in its own process
     mem = md[md.index("## Peak memory at 64x64"):]
     for m in methods:

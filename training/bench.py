@@ -19,6 +19,8 @@ skipping bilinear taps of zero weight, never fires on its sub-pixel pan): per-st
 of the onnxruntime driver (profiled: graph stages get their own rows) and of torch eager
 (forward hooks), whole frame ms of OIDN and SVGF, at each ``--sizes``, all methods
 interleaved frame by frame (:func:`training.harness.time_interleaved`); the noisy input costs 0 ms.
+Per-sample models (ANF, NDLE) are timed again at 1, 2, 4 and 8 spp at the smallest size, alone
+(:func:`spp_part`): their per-sample stages must grow linearly in S, the rest not at all.
 
 *Compute*: FLOPs/FMAs and parameters of each model at each size (:mod:`training.flops`), the
 achieved GFLOP/s (FLOPs / graph wall time) against this CPU's peak
@@ -113,6 +115,9 @@ def run(models=(), builtins=BUILTIN_METHODS, sizes=DEFAULT_SIZES, chart_size=CHA
     # --- timing
     res["stage_rows"], res["frame_ms"] = timing_part(models, builtins, sizes, frames, warmup, threads,
                                                      torch_too, seed, log, device)
+    # --- per-sample models against S
+    res["spp_scaling"] = spp_part(models, min(sizes, key=lambda s: s[0] * s[1]), frames, warmup, threads,
+                                  seed, log, device)
     # --- memory (CPU: a fresh process per method)
     if memory and device == "cpu":
         res["memory"] = memory_part(models, builtins, max(sizes, key=lambda s: s[0] * s[1]), threads, log)
@@ -230,6 +235,39 @@ def timing_part(models, builtins, sizes, frames, warmup, threads, torch_too, see
                          "torch_ms": None, "paper_ms": None, "method_ms": m})
             log(f"{b} {size}: {m:.1f} ms/frame")
     return rows, frame_ms
+
+
+#: Samples per pixel of the per-sample models' scaling rows (issue 16: the per-sample stages
+#: grow linearly in S, everything after the average over samples does not depend on it).
+SCALING_SPP = (1, 2, 4, 8)
+
+
+def spp_part(models, size, frames, warmup, threads, seed, log, device="cpu") -> dict:
+    """Per-stage medians (ms) of every per-sample model at each S of :data:`SCALING_SPP`, on
+    the same synthetic frames at ``size`` (W, H), a fresh driver per S.  Returns
+    ``{"size": "WxH", "spp": [...], "models": {name: {stage: [ms at each S]}}}``; no models
+    when none reads samples."""
+    from mcdenoise.runtime.denoiser import Denoiser
+
+    w, h = size
+    out = {"size": f"{w}x{h}", "spp": list(SCALING_SPP), "models": {}}
+    for path in models:
+        if not Denoiser.load(path, log=lambda m: None).contract.samples_input:
+            continue
+        per_spp = []
+        for spp in SCALING_SPP:
+            den = onnx_driver(path, threads, device)
+            time_interleaved({path: den}, w, h, frames, warmup, seed, spp)
+            per_spp.append(timing.medians(den.stage_times()[warmup:]))
+            name = den.contract.spec_name
+            stages = ([s for s in timing.DRIVER_STAGES_BEFORE] + [s["name"] for s in den.contract.stages]
+                      + list(timing.DRIVER_STAGES_AFTER) + [timing.GRAPH, timing.TOTAL])
+            del den
+            gc.collect()
+        out["models"][name] = {s: [m.get(s) for m in per_spp] for s in stages if any(s in m for m in per_spp)}
+        log(f"{name} {w}x{h} at {', '.join(map(str, SCALING_SPP))} spp: "
+            + ", ".join(f"{m[timing.TOTAL]:.1f}" for m in per_spp) + " ms/frame")
+    return out
 
 
 def memory_part(models, builtins, size, threads, log) -> dict:

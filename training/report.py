@@ -403,6 +403,20 @@ def bench_markdown(res) -> str:
                 ratios.append(f"- {name} at {s}: {ms:.1f} ms = {ms / o:.2f}x Open Image Denoise high ({o:.1f} ms)")
     if ratios:
         L += ["", "Against Open Image Denoise (quality high, same run):", ""] + ratios
+    sc = res.get("spp_scaling") or {}
+    if sc.get("models"):
+        spps = sc["spp"]
+        L += ["", f"## Per-sample models against samples per pixel, {sc['size']}", "",
+              "Median ms per stage, a fresh driver at each S on the same synthetic frames, and the ratio of "
+              f"the last to the first S ({spps[-1]}x the samples): a stage that reads every sample grows "
+              "about as fast as S (less its fixed cost), one after the average over samples stays near 1.", ""]
+        for name, stages in sc["models"].items():
+            L += [f"{name}:", "", "| stage | " + " | ".join(f"{s} spp" for s in spps) + f" | {spps[-1]}/{spps[0]} |",
+                  "|---|" + "---:|" * (len(spps) + 1)]
+            for st, ms in stages.items():
+                ratio = f"{ms[-1] / ms[0]:.2f}" if ms[0] and ms[-1] is not None else "-"
+                L.append(f"| {st} | " + " | ".join(_fmt(m, ".1f") for m in ms) + f" | {ratio} |")
+            L.append("")
     mem = res.get("memory")
     if mem:
         samples = f" with {mem['spp']} samples per pixel" if mem["spp"] else ""
