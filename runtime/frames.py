@@ -48,6 +48,8 @@ PIXEL_LAYERS: tuple[Layer, ...] = (
     Layer("depth", ("Z",), "mean distance from the camera (lens) centre to the first hit (the ray "
           "distance for a pinhole; differs from it by at most the aperture radius for a thin lens)",
           "scene units", "-", "0"),
+    Layer("emissive", ("E",), "fraction of the samples whose first hit is an area emitter (the light "
+          "itself in view): lets a model demodulate lights by 1, not by their albedo of 0", "[0, 1]", "-", "0"),
     Layer("position", ("X", "Y", "Z"), "mean first-hit position", "scene units", "world", "0"),
     Layer("motion", ("X", "Y"),
           "where this pixel's surface point was in frame t-1, as an offset: prev = (x, y) + motion",
@@ -132,7 +134,7 @@ class FrameError(ValueError):
 class Frame:
     """One frame. Arrays are float32; absent layers are ``None``.
 
-    color, albedo, normal, position, reference: (H, W, 3); depth, valid: (H, W, 1);
+    color, albedo, normal, position, reference: (H, W, 3); depth, emissive, valid: (H, W, 1);
     motion: (H, W, 2); samples: (S, H, W, len(SAMPLE_FEATURES)).
     ``meta``: JSON-able dict (spp, frame index, scene seed, camera, cut flag, ...).
     """
@@ -141,6 +143,7 @@ class Frame:
     albedo: Optional[np.ndarray] = None
     normal: Optional[np.ndarray] = None
     depth: Optional[np.ndarray] = None
+    emissive: Optional[np.ndarray] = None
     position: Optional[np.ndarray] = None
     motion: Optional[np.ndarray] = None
     valid: Optional[np.ndarray] = None
@@ -230,11 +233,8 @@ def write_frame(path: str | os.PathLike, frame: Frame) -> None:
     meta = dict(frame.meta)
     meta["format_version"] = FORMAT_VERSION
     meta["spp"] = frame.spp if frame.samples is not None else meta.get("spp", 0)
-    header = {
-        "compression": OpenEXR.ZIP_COMPRESSION,
-        "type": OpenEXR.scanlineimage,
-        META_KEY: json.dumps(meta, sort_keys=True),
-    }
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              META_KEY: json.dumps(meta, sort_keys=True)}
     tmp = f"{os.fspath(path)}.tmp"
     OpenEXR.File(header, channels).write(tmp)
     os.replace(tmp, path)  # a crash mid-write never leaves a truncated frame behind
@@ -269,15 +269,12 @@ def _as_float32(path: str, name: str, arr: np.ndarray) -> np.ndarray:
     raise FrameError(f"{path}: channel {name!r} has dtype {arr.dtype}, expected float32 or half")
 
 
-def read_meta(path: str | os.PathLike) -> dict:
-    """The frame's JSON metadata (header only; cheap)."""
+def read_meta(path: str | os.PathLike, f=None) -> dict:
+    """The frame's JSON metadata (header only; cheap); ``f``: the file, when open already."""
     path = os.fspath(path)
-    f = _open(path, header_only=True)
-    raw = f.header().get(META_KEY)
-    if raw is None:
-        return {}
+    raw = (f or _open(path, header_only=True)).header().get(META_KEY)
     try:
-        return json.loads(raw)
+        return json.loads(raw) if raw else {}
     except json.JSONDecodeError as e:
         raise FrameError(f"{path}: header attribute {META_KEY!r} is not valid JSON ({e})") from None
 
@@ -298,11 +295,7 @@ def read_frame(path: str | os.PathLike, layers: Optional[Iterable[str]] = None,
         chans = f.channels()
     except Exception as e:
         raise FrameError(f"{path}: pixel data cannot be decoded, file truncated or corrupt ({e})") from None
-    raw = f.header().get(META_KEY)
-    try:
-        meta = json.loads(raw) if raw else {}
-    except json.JSONDecodeError as e:
-        raise FrameError(f"{path}: header attribute {META_KEY!r} is not valid JSON ({e})") from None
+    meta = read_meta(path, f)
 
     def get(name: str) -> np.ndarray:
         if name not in chans:
@@ -335,6 +328,8 @@ def read_frame(path: str | os.PathLike, layers: Optional[Iterable[str]] = None,
         for s in range(n_load):
             for i, fname in enumerate(SAMPLE_FEATURES):
                 sample_arr[s, ..., i] = get(f"sample{s}.{fname}")
+        if "emissive" in want and "emissive" not in out and n_load == n_stored:   # written before the layer
+            out["emissive"] = pixel_means(sample_arr)["emissive"]
     frame = Frame(samples=sample_arr, meta=meta, path=path, **out)
     frame.validate()
     return frame
@@ -462,7 +457,9 @@ def write_png(path: str | os.PathLike, image01: np.ndarray) -> None:
 
 def pixel_means(samples: np.ndarray) -> dict[str, np.ndarray]:
     """Pixel layers implied by per-sample data (S, H, W, F): the mean of radiance (``color``),
-    albedo, depth and position, and the renormalised mean normal (0 where all samples miss).
+    albedo, depth, the emissive flag and position, and the renormalised mean normal (0 where all
+    samples miss); a dict of :class:`Frame` fields (no emissive from fewer features than that
+    flag's index: a cache that dropped the later ones).
     The one definition of how samples become pixels; the renderer and the dataset's spp
     subsets both use it."""
     m = samples.mean(axis=0)
@@ -471,7 +468,8 @@ def pixel_means(samples: np.ndarray) -> dict[str, np.ndarray]:
     length = np.linalg.norm(nrm, axis=-1, keepdims=True)
     nrm = np.where(length > 1e-6, nrm / np.maximum(length, 1e-6), 0.0).astype(np.float32)
     return {"color": m[..., g["radiance"]], "albedo": m[..., g["albedo"]], "normal": nrm,
-            "depth": m[..., g["depth"]], "position": m[..., g["position"]]}
+            "depth": m[..., g["depth"]], "position": m[..., g["position"]],
+            **({"emissive": m[..., g["emissive"]]} if m.shape[-1] >= g["emissive"].stop else {})}
 
 
 #: Sequence layout on disk: <root>/<scene dir>/frame_<t:04d>.exr, one folder per sequence,

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from mcdenoise.runtime.frames import FrameError, read_frame
+from mcdenoise.runtime.frames import SAMPLE_GROUPS, FrameError, read_frame, write_frame
 from mcdenoise.runtime.inputs import camera_axes
 from mcdenoise.runtime.temporal import reproject
 from mcdenoise.training.dataset import SequenceDataset, collate, dihedral, discover, split
@@ -45,6 +45,28 @@ def test_one_spp_colour_is_one_of_the_samples(tiny_dataset):
     item = ds.make_item(0, 0, 0, 0, 64, 1, 0)
     fr = read_frame(ds.seqs[0].frames[0])
     np.testing.assert_allclose(item["color"][0].transpose(1, 2, 0), fr.samples[0, ..., 0:3], rtol=1e-6)
+
+
+def test_the_emissive_layer_is_the_drawn_samples_share_of_lights(tiny_dataset, tmp_path):
+    # the tiny set's scenes have no light in view: a copy of one sequence gets some, its
+    # per-sample flags set in a corner, one sample in two at the corner's edge
+    seq = discover(tiny_dataset)[0]
+    out = tmp_path / "data" / os.path.basename(seq.folder)
+    out.mkdir(parents=True)
+    for path in seq.frames:
+        fr = read_frame(path)
+        fr.samples[:, :20, :20, SAMPLE_GROUPS["emissive"]] = 1.0
+        fr.samples[::2, 20:24, :20, SAMPLE_GROUPS["emissive"]] = 1.0
+        fr.emissive = None     # as files from before the layer: read back from the samples
+        write_frame(out / os.path.basename(path), fr)
+    ds = SequenceDataset(tmp_path / "data", "all", LAYERS + ("emissive",), crop=64, spp_choices=(2,), window=1,
+                         augment=False)
+    fr = read_frame(ds.seqs[0].frames[0])
+    assert fr.emissive[:20, :20].min() == 1 and fr.emissive[20:24, :20].max() == 0.5 and fr.emissive[30:].max() == 0
+    item = ds.make_item(0, 0, 0, 0, 64, 2, 0)
+    flag = fr.samples[:2, ..., SAMPLE_GROUPS["emissive"]].mean(axis=0)
+    assert item["emissive"].shape == (1, 1, 64, 64)
+    np.testing.assert_array_equal(item["emissive"][0, 0], flag[..., 0])
 
 
 def test_dihedral_vector_convention():

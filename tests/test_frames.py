@@ -10,7 +10,7 @@ def _frame(h=6, w=7, spp=2, seed=0):
     rng = np.random.default_rng(seed)
     r = lambda *s: rng.random(s, dtype=np.float32)
     return F.Frame(color=r(h, w, 3), albedo=r(h, w, 3), normal=r(h, w, 3), depth=r(h, w, 1),
-                   position=r(h, w, 3), motion=r(h, w, 2), valid=np.ones((h, w, 1), np.float32),
+                   emissive=r(h, w, 1), position=r(h, w, 3), motion=r(h, w, 2), valid=np.ones((h, w, 1), np.float32),
                    reference=r(h, w, 3), samples=r(spp, h, w, len(F.SAMPLE_FEATURES)),
                    meta={"scene_seed": 7, "frame": 3})
 
@@ -31,6 +31,17 @@ def test_round_trip_is_exact(tmp_path):
     assert back.spp == 2 and back.size == (6, 7)
     assert F.read_frame(tmp_path / "f.exr", samples=1).spp == 1
     assert F.read_frame(tmp_path / "f.exr", samples=False).samples is None
+
+
+def test_a_file_from_before_the_emissive_layer_gets_it_from_its_samples(tmp_path):
+    fr = _frame(spp=3)
+    fr.samples[..., F.SAMPLE_GROUPS["emissive"]] = np.arange(3, dtype=np.float32)[:, None, None, None] < 1
+    fr.emissive = None
+    F.write_frame(tmp_path / "f.exr", fr)
+    np.testing.assert_array_equal(F.read_frame(tmp_path / "f.exr").emissive, np.full((6, 7, 1), 1 / 3, np.float32))
+    # from part of the samples it would be another mean: left out rather than made up
+    assert F.read_frame(tmp_path / "f.exr", samples=1).emissive is None
+    assert F.read_frame(tmp_path / "f.exr", samples=False).emissive is None
 
 
 def test_sample_groups_cover_every_feature_once():

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from mcdenoise.training.models import example_inputs
+from mcdenoise.training.models.common import emitter_albedo
 from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, RepVGGBlock, ReconstructionStage,
                                    WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, downsample2,
                                    fuse_kernels, fusion_factors, importance_weights, kernel_exponentials,
@@ -90,6 +91,8 @@ def test_output_is_a_convex_combination_of_demodulated_input(name):
     t = _tensors(model, 1, 20, 28)
     names = model.input_names
     albedo = t[names.index("albedo")]
+    if "emissive" in names:      # lights (de)modulate by 1, the rest by its albedo
+        albedo = emitter_albedo(albedo, t[names.index("emissive")])
     t[names.index("color")] = 0.7 * (albedo + ALBEDO_EPS)  # irradiance 0.7 everywhere
     if "history" in names:
         t[names.index("history")] = torch.zeros_like(t[names.index("history")])
@@ -113,6 +116,45 @@ def test_builder_validates_stages_state_and_layers():
         build_model(parse_spec(raw.replace("kernel_sizes = [3, 5, 7, 9, 11, 13]", "kernel_sizes = [3, 4]"), "s.toml"))
     with pytest.raises(SpecError, match=r"\[params\]: widths: need 1 positive"):
         build_model(parse_spec(raw.replace("widths = [16]", "widths = [16, 8]"), "s.toml"))
+
+    # the emissive layer is an addition a spec may make once; NBG does not read it
+    with pytest.raises(SpecError, match=r"duplicate entries"):
+        build_model(parse_spec(raw.replace('"depth"]', '"depth", "emissive", "emissive"]'), "s.toml"))
+    with pytest.raises(SpecError, match=r"optionally with \['emissive'\]"):
+        build_model(parse_spec(raw.replace('"depth"]', '"depth", "position"]'), "s.toml"))
+    nbg = load_spec("nbg-2l-1g").raw
+    with pytest.raises(SpecError, match=r"\[inputs\]\.layers must be"):
+        build_model(parse_spec(nbg.replace('"depth"]', '"depth", "emissive"]'), "s.toml"))
+
+
+def test_lights_demodulate_by_one_and_the_network_sees_them():
+    """emitter_albedo: albedo where no sample hit a light, 1 where all did, the coverage mix
+    between, whatever value the layer holds (clamped). A model reading the layer gives a light
+    an irradiance of its colour, not colour / ALBEDO_EPS, and its ImportanceNet an 11th channel."""
+    albedo = torch.tensor([0.0, 0.5, 0.8, 0.2]).reshape(1, 1, 2, 2).expand(1, 3, 2, 2)
+    e = torch.tensor([1.0, 0.5, 0.0, 7.0]).reshape(1, 1, 2, 2)
+    got = emitter_albedo(albedo, e)[0, 0].flatten().tolist()
+    assert got == pytest.approx([1.0, 0.75, 0.8, 1.0])
+    assert emitter_albedo(albedo, None) is albedo
+    torch.manual_seed(0)
+    plain, lit = build_model(load_spec("wskpn-6")), build_model(load_spec("wskpn-6e"))
+    first = [[m for m in x.prediction.modules() if isinstance(m, torch.nn.Conv2d)][0] for x in (plain, lit)]
+    assert (first[0].in_channels, first[1].in_channels) == (10, 11)
+    # a light (colour 15.7, albedo 0) beside a dark wall: with the layer its demodulated value
+    # is 15.7 (not 1,570), so no kernel can spread a hundredfold light into the wall
+    lit.eval()
+    t = _tensors(lit, 1, 16, 16)
+    names = lit.input_names
+    t[names.index("albedo")][:] = 0.7
+    t[names.index("albedo")][..., :8] = 0.0
+    t[names.index("emissive")][:] = 0.0
+    t[names.index("emissive")][..., :8] = 1.0
+    t[names.index("color")][:] = 0.01
+    t[names.index("color")][..., :8] = 15.7
+    with torch.no_grad():
+        out = lit(*t)[0]
+    assert float(out[..., 8:].max()) <= 15.7 * (0.7 + ALBEDO_EPS) + 1e-4     # at most the light's own value
+    assert float(out[..., :8].min()) >= 0.01 * (1 + ALBEDO_EPS) - 1e-6
 
 
 # ----------------------------------------------------------------------------------------------

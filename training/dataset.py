@@ -187,8 +187,10 @@ class SequenceDataset:
         if fr is None:
             fr = read_frame(path, require=("color", "reference", "motion", "samples"))
             # Pixel models need only the features pixel_means() reads (radiance .. position,
-            # the first 13); keeping just those halves the cache for big training sets.
-            keep = len(fr.samples[0, 0, 0]) if self.samples else SAMPLE_GROUPS["position"].stop
+            # the first 13 of 25, and up to the emissive flag, 17, for a model that reads it);
+            # keeping just those halves the cache for big training sets.
+            keep = len(fr.samples[0, 0, 0]) if self.samples else \
+                SAMPLE_GROUPS["emissive" if "emissive" in self.layers else "position"].stop
             fr.samples = np.ascontiguousarray(fr.samples[..., :keep])
             self._cache[path] = fr
         return fr
@@ -239,8 +241,7 @@ class SequenceDataset:
             sub = sub[idx]
             px = pixel_means(sub)
             win = (slice(y0, y0 + c), slice(x0, x0 + c))
-            crop = Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"],
-                         depth=px["depth"], position=px["position"], motion=fr.motion[win],
+            crop = Frame(**px, motion=fr.motion[win],
                          valid=None if fr.valid is None else fr.valid[win],
                          reference=fr.reference[win], meta=fr.meta, path=fr.path)
             report = SanitizeReport()

@@ -66,9 +66,11 @@ def synthetic_frame(w: int, h: int, t: int, seed: int = 0, spp: int = 0) -> dict
     color = albedo * rng.exponential(1.0, (h, w, 3)).astype(np.float32)
     motion = np.empty((h, w, 2), np.float32)
     motion[..., 0], motion[..., 1] = SYNTHETIC_PAN
+    emissive = np.zeros((h, w, 1), np.float32)
+    emissive[:h // 8, :w // 8] = 1.0      # a light in view, for the models that read the layer
     out = {"color": color.astype(np.float32), "albedo": albedo.astype(np.float32),
-           "normal": normal, "depth": depth.astype(np.float32), "position": position.astype(np.float32),
-           "motion": motion, "meta": {}}
+           "normal": normal, "depth": depth.astype(np.float32), "emissive": emissive,
+           "position": position.astype(np.float32), "motion": motion, "meta": {}}
     if spp:
         out.update(synthetic_samples(out, spp, rng))
     return out
@@ -84,7 +86,7 @@ def synthetic_samples(frame: dict, spp: int, rng: np.random.Generator) -> dict:
     h, w, _ = frame["color"].shape
     samples = np.zeros((spp, h, w, len(SAMPLE_FEATURES)), np.float32)
     samples[..., g["radiance"]] = frame["albedo"] * rng.exponential(1.0, (spp, h, w, 3))
-    for name in ("albedo", "normal", "depth", "position"):
+    for name in ("albedo", "normal", "depth", "emissive", "position"):
         samples[..., g[name]] = frame[name]
     samples[..., g["roughness"]] = 1.0
     samples[..., g["specular"]] = rng.random((spp, h, w, 1)) < 0.1

@@ -197,8 +197,7 @@ def with_samples(frame: Frame, samples: np.ndarray) -> Frame:
     """``frame`` with per-sample data ``samples`` (S, H, W, F) and its pixel layers recomputed
     from them (:func:`runtime.frames.pixel_means`); motion (a copy), valid, reference and meta kept."""
     px = pixel_means(samples)
-    return Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"], depth=px["depth"],
-                 position=px["position"], motion=None if frame.motion is None else frame.motion.copy(),
+    return Frame(**px, motion=None if frame.motion is None else frame.motion.copy(),
                  valid=frame.valid, reference=frame.reference, samples=samples,
                  meta=dict(frame.meta, spp=int(samples.shape[0])), path=frame.path)
 

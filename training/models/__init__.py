@@ -63,7 +63,8 @@ def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0, s
 
     color: smooth HDR radiance times 1-spp-like noise (heavy-tailed, with a few fireflies up
     to ~100); albedo in [0, 1] with a few 0 (miss) pixels; normal: unit vectors (0 where
-    depth is 0); depth in [0.5, 20] with ~3% misses (0); prev_<state>: like color; history:
+    depth is 0); depth in [0.5, 20] with ~3% misses (0); emissive (when the model reads it): 90% 0,
+    5% 1, 5% fractions; prev_<state>: like color; history:
     a mix of 0, 1 and fractions.
     """
     rng = np.random.default_rng(seed)
@@ -83,6 +84,9 @@ def example_inputs(model, n: int = 1, h: int = 32, w: int = 48, seed: int = 0, s
     }
     nrm = rng.normal(size=(n, 3, h, w))
     layers["normal"] = np.where(miss, 0.0, nrm / np.linalg.norm(nrm, axis=1, keepdims=True))
+    if "emissive" in model.input_names:     # drawn only then: the other models' inputs stay as they were
+        u = rng.random((n, 1, h, w))
+        layers["emissive"] = np.where(u < 0.9, 0.0, np.where(u > 0.95, 1.0, rng.random((n, 1, h, w))))
     protocol = Protocol.from_spec(model.state_channels)
     if protocol.state:
         hist = rng.random((n, 1, h, w))

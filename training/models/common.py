@@ -40,6 +40,19 @@ def demodulate(color: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     return color / (albedo + ALBEDO_EPS)
 
 
+def emitter_albedo(albedo: torch.Tensor, emissive: torch.Tensor | None) -> torch.Tensor:
+    """The albedo a model that reads the ``emissive`` layer (de)modulates by: ``albedo`` where no
+    sample hit a light, 1 where all did, the coverage-weighted mix between (N, 3, H, W).
+    A light's own albedo is 0, so demodulating by it gives colour / ALBEDO_EPS, 100x the light's
+    radiance, which a kernel spreads into its neighbours as a halo (docs/results/retrain).
+    ``emissive``: (N, 1, H, W) fraction in [0, 1] (clamped: the layer is not sanitised to a
+    range); None leaves ``albedo`` as it is."""
+    if emissive is None:
+        return albedo
+    e = emissive.clamp(0.0, 1.0)
+    return albedo + e * (1.0 - albedo)
+
+
 def remodulate(irradiance: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     """Inverse of :func:`demodulate`: irradiance · (albedo + ALBEDO_EPS)."""
     return irradiance * (albedo + ALBEDO_EPS)
@@ -57,9 +70,10 @@ class TemporalStage(nn.Module):
 
 
 def aux_features(color: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
-                 depth: torch.Tensor, transfer: str) -> torch.Tensor:
+                 depth: torch.Tensor, transfer: str, emissive: torch.Tensor | None = None) -> torch.Tensor:
     """Network input (WSKPN §5.1, NBG §5): (N, 10, H, W) =
-    [transfer(color) (3), albedo (3), normal·0.5+0.5 in [0, 1] (3), depth / per-image max (1)].
+    [transfer(color) (3), albedo (3), normal·0.5+0.5 in [0, 1] (3), depth / per-image max (1)],
+    and with ``emissive`` (N, 1, H, W) the 11th channel, that fraction clamped to [0, 1].
 
     color: linear HDR radiance (albedo-modulated, as rendered); normal: unit vectors (0 on a
     miss -> 0.5); depth: ray distance, 0 on a miss.  Dividing by the per-image maximum keeps the
@@ -67,7 +81,8 @@ def aux_features(color: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor
     maximum differs from its frame's, which training crops must live with.
     """
     dmax = depth.amax(dim=(1, 2, 3), keepdim=True).clamp(min=1e-12)
-    return torch.cat([get_transfer(transfer)(color), albedo, normal * 0.5 + 0.5, depth / dmax], dim=1)
+    extra = [] if emissive is None else [emissive.clamp(0.0, 1.0)]
+    return torch.cat([get_transfer(transfer)(color), albedo, normal * 0.5 + 0.5, depth / dmax] + extra, dim=1)
 
 
 def accum_interface(layers, temporal: bool):
@@ -98,16 +113,18 @@ def check_accum_state(spec, temporal: bool, where: str, type_name: str) -> None:
                         f"({'with' if temporal else 'without'} a temporal stage), got {state}")
 
 
-def check_accum_model_spec(spec, type_name: str, layers, stages) -> bool:
+def check_accum_model_spec(spec, type_name: str, layers, stages, optional=()) -> bool:
     """Validate the parts of ``spec`` every accumulated-radiance model checks the same way:
-    ``[inputs].layers`` are ``layers`` (any order), ``stages`` are ``stages`` with an optional
+    ``[inputs].layers`` are ``layers`` (any order) plus any of ``optional``, ``stages`` are ``stages`` with an optional
     leading "temporal", and ``[[state]]`` fits (:func:`check_accum_state`).  Raises SpecError
     naming the spec; returns whether the model has the temporal stage."""
     from mcdenoise.training.specs import SpecError
 
     where = spec.path or spec.name
-    if sorted(spec.inputs.layers) != sorted(layers):
-        raise SpecError(f"{where}: [inputs].layers must be {list(layers)} (any order) for type "
+    extra = sorted(set(spec.inputs.layers) - set(layers))
+    if sorted(set(spec.inputs.layers) - set(extra)) != sorted(layers) or not set(extra) <= set(optional):
+        also = f", optionally with {list(optional)}" if optional else ""
+        raise SpecError(f"{where}: [inputs].layers must be {list(layers)} (any order){also} for type "
                         f"'{type_name}', got {list(spec.inputs.layers)}")
     temporal = "temporal" in spec.stages
     want = (("temporal",) if temporal else ()) + tuple(stages)

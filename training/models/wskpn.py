@@ -36,7 +36,7 @@ from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, state_input_name
 from mcdenoise.training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
-                                    aux_features, bind_inputs, check_accum_model_spec,
+                                    aux_features, bind_inputs, check_accum_model_spec, emitter_albedo,
                                     temporal_accumulate)
 from mcdenoise.training.specs import ModelSpec, register
 
@@ -58,6 +58,9 @@ IMPORTANCE_BOUND = LOGIT_BOUND
 KERNEL_PATHS = ("boxsum", "unfold")
 #: Pixel layers WSKPN reads, and the channel count of the ImportanceNet input.
 LAYERS = ("color", "albedo", "normal", "depth")
+#: Layers a spec may add: ``emissive`` (an 11th ImportanceNet channel, and lights demodulated
+#: by 1: :func:`training.models.common.emitter_albedo`).
+OPTIONAL_LAYERS = ("emissive",)
 N_FEATURES = 10
 
 
@@ -101,10 +104,10 @@ class WSKPNParams:
 # ----------------------------------------------------------------------------------------------
 
 def wskpn_features(accum: torch.Tensor, albedo: torch.Tensor, normal: torch.Tensor,
-                   depth: torch.Tensor, transfer: str) -> torch.Tensor:
+                   depth: torch.Tensor, transfer: str, emissive: torch.Tensor | None = None) -> torch.Tensor:
     """ImportanceNet input (§5.1): :func:`training.models.common.aux_features` of the
-    accumulated colour, (N, 10, H, W)."""
-    return aux_features(accum, albedo, normal, depth, transfer)
+    accumulated colour, (N, 10, H, W), (N, 11, H, W) with ``emissive``."""
+    return aux_features(accum, albedo, normal, depth, transfer, emissive)
 
 
 def downsample2(x: torch.Tensor) -> torch.Tensor:
@@ -409,19 +412,20 @@ class PredictionStage(nn.Module):
     Returns per level (N, 2M (+1 blend logit below the coarsest level), H_l, W_l), clamped to
     ±LOGIT_BOUND."""
 
-    def __init__(self, params: WSKPNParams, transfer: str):
+    def __init__(self, params: WSKPNParams, transfer: str, emissive: bool = False):
         super().__init__()
         m = len(params.kernel_sizes)
         self.transfer = transfer
         self.multiple = 2 ** (params.levels - 1)
+        cin = N_FEATURES + int(emissive)
         if params.levels == 1:
-            self.net = ImportanceNet(N_FEATURES, params.widths[0], params.blocks, 2 * m, params.batchnorm)
+            self.net = ImportanceNet(cin, params.widths[0], params.blocks, 2 * m, params.batchnorm)
         else:
             couts = [2 * m + 1] * (params.levels - 1) + [2 * m]
-            self.net = ImportanceUNet(N_FEATURES, params.widths, params.blocks, couts, params.batchnorm)
+            self.net = ImportanceUNet(cin, params.widths, params.blocks, couts, params.batchnorm)
 
-    def forward(self, accum, albedo, normal, depth):
-        f = wskpn_features(accum, albedo, normal, depth, self.transfer)
+    def forward(self, accum, albedo, normal, depth, emissive=None):
+        f = wskpn_features(accum, albedo, normal, depth, self.transfer, emissive)
         if self.multiple > 1:
             f = pad_to_multiple(f, self.multiple)
         # Bounded here, not in reconstruction: onnxruntime fuses the clamp into the last
@@ -431,7 +435,8 @@ class PredictionStage(nn.Module):
 
 class ReconstructionStage(nn.Module):
     """Stage "reconstruction": demodulate, filter and fuse per level, combine levels (Eq. 7),
-    re-modulate.  accum, albedo: (N, 3, H, W); preds: output of :class:`PredictionStage`.
+    re-modulate.  accum, albedo: (N, 3, H, W); preds: output of :class:`PredictionStage`;
+    emissive: None or (N, 1, H, W) (:func:`training.models.common.emitter_albedo`).
     Returns (N, 3, H, W) linear HDR."""
 
     def __init__(self, params: WSKPNParams, kernel_path: str = "boxsum"):
@@ -442,9 +447,9 @@ class ReconstructionStage(nn.Module):
         self.multiple = 2 ** (params.levels - 1)
         self.kernel_path = kernel_path
 
-    def forward(self, accum, albedo, preds):
+    def forward(self, accum, albedo, preds, emissive=None):
         m = len(self.kernel_sizes)
-        modulation = albedo + ALBEDO_EPS
+        modulation = emitter_albedo(albedo, emissive) + ALBEDO_EPS
         x = accum / modulation
         h, w = x.shape[-2], x.shape[-1]
         if self.multiple > 1:
@@ -491,7 +496,7 @@ class WSKPN(nn.Module):
         self.temporal_enabled = temporal
         if temporal:
             self.temporal = TemporalStage(params.alpha)
-        self.prediction = PredictionStage(params, transfer)
+        self.prediction = PredictionStage(params, transfer, "emissive" in layers)
         self.reconstruction = ReconstructionStage(params, kernel_path)
         self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
 
@@ -500,8 +505,9 @@ class WSKPN(nn.Module):
         accum = t["color"]
         if self.temporal_enabled:
             accum = self.temporal(accum, t[state_input_name(ACCUM)], t[HISTORY])
-        preds = self.prediction(accum, t["albedo"], t["normal"], t["depth"])
-        out = self.reconstruction(accum, t["albedo"], preds)
+        e = t.get("emissive")
+        preds = self.prediction(accum, t["albedo"], t["normal"], t["depth"], e)
+        out = self.reconstruction(accum, t["albedo"], preds, e)
         return (out, accum) if self.temporal_enabled else (out,)
 
     @property
@@ -532,5 +538,5 @@ def build_wskpn(spec: ModelSpec) -> WSKPN:
     stages (["temporal",] "prediction", "reconstruction") and the state ([accum, 3] iff there is
     a temporal stage)."""
     params = spec.params_as(WSKPNParams)
-    temporal = check_accum_model_spec(spec, "wskpn", LAYERS, ("prediction", "reconstruction"))
+    temporal = check_accum_model_spec(spec, "wskpn", LAYERS, ("prediction", "reconstruction"), OPTIONAL_LAYERS)
     return WSKPN(params, spec.inputs.layers, spec.inputs.transfer, temporal)

@@ -423,8 +423,7 @@ class SequenceRenderer:
             "seeds": {"passes": seeds, "reference": ref_seeds}, "max_depth": seq.max_depth,
             "source": seq.source,
         }
-        return Frame(color=px["color"], albedo=px["albedo"], normal=px["normal"], depth=px["depth"],
-                     position=px["position"], motion=motion, valid=valid[..., None].astype(np.float32),
+        return Frame(**px, motion=motion, valid=valid[..., None].astype(np.float32),
                      reference=reference, samples=samples, meta=meta)
 
 

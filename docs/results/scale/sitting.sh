@@ -8,12 +8,13 @@
 #
 # Usage: SHARDS="20 27" bash docs/results/scale/sitting.sh K RENDER_MIN TRAIN_MIN [SPEC]
 #   K           this sitting's number: its run is docs/results/scale/<SPEC>-<K>, started from
-#               <SPEC>-<K-1> (sitting 1 starts from docs/results/retrain/run, wskpn-6 with the
-#               same recipe on data/curves-train, 2014 steps).
+#               <SPEC>-<K-1>; sitting 1 starts from scratch, or from INIT=RUN_FOLDER.
 #   RENDER_MIN  minutes of rendering, one shard per core at once (0: train on what is there).
 #               The renders resume per frame, so the next call on this machine goes on with them.
 #   TRAIN_MIN   the training budget in minutes, on every core (its cosine rate is planned
-#               over STEPS, default 2400, and stops at whichever comes first).
+#               over STEPS, default 2400, and stops at whichever comes first). Train with
+#               nothing else running: a render at nice 19 beside it made a wskpn-6 step 10-60x
+#               slower here (0.6 s alone on 2 threads; 6-40 s beside two renders).
 # Shards: data/train-256/shard-<seed>, 32 scenes x 8 frames, 8 stored spp, 256-spp references,
 # half enclosed rooms (docs/render-queue.sh). Never give two sittings of one chain the same seed.
 set -euo pipefail
@@ -21,7 +22,7 @@ cd "$(dirname "$0")/../../.."
 k=$1; render_min=$2; train_min=$3; spec=${4:-wskpn-6}
 out=docs/results/scale
 run=$out/$spec-$k
-if [ "$k" = 1 ]; then init=docs/results/retrain/run; else init=$out/$spec-$((k - 1)); fi
+if [ "$k" = 1 ]; then init=${INIT:-}; else init=${INIT:-$out/$spec-$((k - 1))}; fi
 [ -n "${SHARDS:-}" ] || { echo "sitting.sh: give the shard seeds of this sitting in SHARDS, e.g. SHARDS=\"20 27\"" >&2; exit 2; }
 cores=$(nproc)
 
@@ -42,7 +43,7 @@ if [ "$render_min" != 0 ]; then
 fi
 
 # Sequences still rendering hold .partial.json and are left out by the data set.
-mcdenoise train "$spec" --data data/train-256 --out "$run" --init "$init" --spp 1 2 4 8 --window 8 \
+mcdenoise train "$spec" --data data/train-256 --out "$run" ${init:+--init "$init"} --spp 1 2 4 8 --window 8 \
   --temporal-weight 0.25 --steps "${STEPS:-2400}" --lr-schedule cosine --minutes "$train_min" \
   --val-every "${VAL_EVERY:-300}" --test data/curves-test --threads "$cores" --quiet
 python - "$run" "$SHARDS" <<'EOF'
