@@ -6,6 +6,9 @@
 # Usage: bash docs/render-queue.sh [DATA_DIR]   (default: data/, which git ignores)
 # A second core renders shards alone, from the other end: SETS=0 SHARDS="27 26 25 24" bash docs/render-queue.sh
 # (two queues must never render the same shard at once: their manifests would collide).
+# Never train beside a queue: at nice 19 two renders still made a 2-thread wskpn-6 training step
+# 10-60x slower on this 2-core VM (6-40 s against 0.6 s alone); pause them (pkill -STOP -f
+# "mcdenoise render", then -CONT) or stop them (TERM: they resume at the frame in flight).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 data=${1:-data}

@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
+from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
                             read_frame, read_meta)
 from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs, sample_channels, sample_inputs
 
@@ -172,6 +172,9 @@ class SequenceDataset:
         self.augment = augment
         self.sample_groups = tuple(sample_groups)
         self.samples = samples or bool(self.sample_groups)
+        groups = ("radiance", "albedo", "normal", "depth", "position") + (("emissive",) if "emissive" in self.layers else ())
+        #: the per-sample features a pixel model's cache keeps, by index into SAMPLE_FEATURES
+        self._columns = [i for g in groups for i in range(SAMPLE_GROUPS[g].start, SAMPLE_GROUPS[g].stop)]
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -186,12 +189,12 @@ class SequenceDataset:
         fr = self._cache.get(path)
         if fr is None:
             fr = read_frame(path, require=("color", "reference", "motion", "samples"))
-            # Pixel models need only the features pixel_means() reads (radiance .. position,
-            # the first 13 of 25, and up to the emissive flag, 17, for a model that reads it);
-            # keeping just those halves the cache for big training sets.
-            keep = len(fr.samples[0, 0, 0]) if self.samples else \
-                SAMPLE_GROUPS["emissive" if "emissive" in self.layers else "position"].stop
-            fr.samples = np.ascontiguousarray(fr.samples[..., :keep])
+            if not self.samples:
+                # A pixel model's items are made from the features pixel_means() reads (14 or 15
+                # of 25) and the motion, valid and reference layers: the cache keeps just those
+                # (under a third of the frame; 440 frames at 256x256 x 8 spp are then 13 GB).
+                fr.samples = np.ascontiguousarray(fr.samples[..., self._columns])
+                fr.albedo = fr.normal = fr.depth = fr.position = fr.emissive = None
             self._cache[path] = fr
         return fr
 
@@ -239,6 +242,10 @@ class SequenceDataset:
             sub = fr.samples[:, y0:y0 + c, x0:x0 + c]
             idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if rng is not None else np.arange(n)
             sub = sub[idx]
+            if not self.samples:    # the cached columns back in the frame format's layout
+                full = np.zeros(sub.shape[:-1] + (len(SAMPLE_FEATURES),), np.float32)
+                full[..., self._columns] = sub
+                sub = full
             px = pixel_means(sub)
             win = (slice(y0, y0 + c), slice(x0, x0 + c))
             crop = Frame(**px, motion=fr.motion[win],

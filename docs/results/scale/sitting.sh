@@ -34,7 +34,7 @@ mcdenoise render --out data/curves-test --scenes 4 --frames 8 --spp 8 --ref-spp 
 if [ "$render_min" != 0 ]; then
   pids=()
   for seed in $SHARDS; do
-    timeout --signal=INT "${render_min}m" nice -n 19 mcdenoise render --out "data/train-256/shard-$seed" \
+    timeout "${render_min}m" nice -n 19 mcdenoise render --out "data/train-256/shard-$seed" \
       --scenes 32 --frames 8 --size 256x256 --spp 8 --ref-spp 256 --seed "$seed" --enclosed 0.5 \
       --workers 1 < /dev/null > "data/render-shard-$seed.log" 2>&1 &
     pids+=($!)
