@@ -22,6 +22,9 @@ def load() -> dict:
         for m, r in d.items():
             if m == "_setup":
                 continue
+            # a spec's name says which model, not which weights: the shipped file or a sitting's run
+            if m != "noisy" and not m.startswith("oidn"):
+                m = f"{m} (shipped)" if p.parent.name == "baseline" else f"{m} ({p.parent.name})"
             if kind == "sequences":
                 r = dict(r["after_warmup"], trmae=r["after_warmup"].get("trmae"))
             out.setdefault((kind, setup["spp"]), {})[m] = r
