@@ -155,6 +155,12 @@ def test_lights_demodulate_by_one_and_the_network_sees_them():
         out = lit(*t)[0]
     assert float(out[..., 8:].max()) <= 15.7 * (0.7 + ALBEDO_EPS) + 1e-4     # at most the light's own value
     assert float(out[..., :8].min()) >= 0.01 * (1 + ALBEDO_EPS) - 1e-6
+    # a rough conductor's albedo AOV of 58 re-modulates by 1 with albedo_clamp (wskpn-6e has it)
+    assert lit.reconstruction.albedo_clamp and not plain.reconstruction.albedo_clamp
+    t[names.index("albedo")][..., 8:] = 58.0
+    with torch.no_grad():
+        out = lit(*t)[0]
+    assert float(out[..., 8:].max()) <= 15.7 * (1 + ALBEDO_EPS) + 1e-4
 
 
 # ----------------------------------------------------------------------------------------------

@@ -76,6 +76,9 @@ class WSKPNParams:
     levels: resolutions (1: single-resolution WSKPN; 3: the paper's multi-resolution model).
     alpha: temporal blend factor of the current frame (used only with a "temporal" stage).
     batchnorm: BatchNorm after every RepVGG branch (as in RepVGG); folded away by deploy().
+    albedo_clamp: (de)modulate by the albedo clamped to [0, 1]. Mitsuba's albedo of a rough
+        conductor can be 50 or more, and a filtered irradiance re-modulated by it is a firefly
+        (docs/results/scale); off by default, as the shipped models were trained.
     """
 
     blocks: int
@@ -84,6 +87,7 @@ class WSKPNParams:
     levels: int = 1
     alpha: float = 0.2
     batchnorm: bool = True
+    albedo_clamp: bool = False
 
     def __post_init__(self):
         if self.levels < 1:
@@ -446,9 +450,12 @@ class ReconstructionStage(nn.Module):
         self.kernel_sizes = tuple(params.kernel_sizes)
         self.multiple = 2 ** (params.levels - 1)
         self.kernel_path = kernel_path
+        self.albedo_clamp = params.albedo_clamp
 
     def forward(self, accum, albedo, preds, emissive=None):
         m = len(self.kernel_sizes)
+        if self.albedo_clamp:
+            albedo = albedo.clamp(0.0, 1.0)
         modulation = emitter_albedo(albedo, emissive) + ALBEDO_EPS
         x = accum / modulation
         h, w = x.shape[-2], x.shape[-1]

@@ -21,7 +21,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../../.."
 k=$1; render_min=$2; train_min=$3; spec=${4:-wskpn-6}
 out=docs/results/scale
-run=$out/$spec-$k
+run=${RUN:-$out/$spec-$k}    # RUN: another folder, e.g. for a second variant of one spec
 if [ "$k" = 1 ]; then init=${INIT:-}; else init=${INIT:-$out/$spec-$((k - 1))}; fi
 [ -n "${SHARDS:-}" ] || { echo "sitting.sh: give the shard seeds of this sitting in SHARDS, e.g. SHARDS=\"20 27\"" >&2; exit 2; }
 cores=$(nproc)
