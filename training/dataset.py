@@ -192,7 +192,7 @@ class SequenceDataset:
             if not self.samples:
                 # A pixel model's items are made from the features pixel_means() reads (14 or 15
                 # of 25) and the motion, valid and reference layers: the cache keeps just those
-                # (under a third of the frame; 440 frames at 256x256 x 8 spp are then 13 GB).
+                # (under a third of the frame: wskpn-6e's 448 frames at 256x256 x 8 spp took 15 GB).
                 fr.samples = np.ascontiguousarray(fr.samples[..., self._columns])
                 fr.albedo = fr.normal = fr.depth = fr.position = fr.emissive = None
             self._cache[path] = fr

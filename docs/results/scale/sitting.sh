@@ -56,8 +56,8 @@ json.dump({"shards": shards, "sequences": len(seqs), "frames": sum(len(s.frames)
            "scene_seeds": [s.seed for s in seqs]}, open(f"{run}/data.json", "w"), indent=1)
 EOF
 
-mcdenoise export "$run" --out "/tmp/$spec-$k.onnx"
-m=/tmp/$spec-$k.onnx
+m=/tmp/$(basename "$run").onnx
+mcdenoise export "$run" --out "$m"
 for spp in 1 4; do
   mcdenoise evaluate "$m" --no-oidn --data data/curves-test --spp $spp --warmup 2 --json "$run/curves-test-${spp}spp.json"
 done
