@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from mcdenoise.training.models import example_inputs
-from mcdenoise.training.models.common import ALBEDO_EPS, demodulate, temporal_accumulate
+from mcdenoise.training.models.common import ALBEDO_EPS, demodulate, modulation_albedo, temporal_accumulate
 from mcdenoise.training.models.nbg import (GUIDE_RANGE, NORMALIZATIONS, NBGParams, blend_weights, corner_coords, grid_shape,
                                  remove_outliers, slice_grid, splat)
 from mcdenoise.training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
@@ -249,6 +249,59 @@ def test_state_weight_is_fed_by_spp_and_a_fixed_alpha_without_it():
     with pytest.raises(SpecError, match=r"accum alpha 0.5 differs from \[params\].alpha 0.2"):
         build_model(parse_spec(spec.raw.replace("alpha = 0.2          # the current frame's weight where",
                                                 "alpha = 0.5          # the current frame's weight where"), "n.toml"))
+
+
+def _lit_spec(clamp: bool = True):
+    """nbg-2l-3g reading the emissive layer, with or without the albedo clamp."""
+    raw = load_spec("nbg-2l-3g").raw.replace('"depth"]', '"depth", "emissive"]')
+    return parse_spec(raw.replace('normalization = "cell"', f'normalization = "cell"\nalbedo_clamp = {str(clamp).lower()}'),
+                      "nbg-lit.toml")
+
+
+def test_lights_and_bright_albedo_demodulate_as_in_wskpn():
+    """With ``emissive`` NBG demodulates a light by 1 (not its albedo of 0, whose colour / ALBEDO_EPS
+    a grid cell shared with a dark wall spreads into it as a halo), its GuideNet sees an 11th
+    channel, and ``albedo_clamp`` re-modulates a rough conductor's albedo AOV of 58 by 1. The
+    accumulated state is the irradiance under that same albedo, so it round-trips exactly."""
+    torch.manual_seed(0)
+    lit = build_model(_lit_spec()).eval()
+    plain = build_model(load_spec("nbg-2l-3g")).eval()
+    first = [[m for m in x.guide.modules() if isinstance(m, torch.nn.Conv2d)][0] for x in (plain, lit)]
+    assert (first[0].in_channels, first[1].in_channels) == (10, 11)
+    assert lit.params.albedo_clamp and not plain.params.albedo_clamp
+
+    def scene(model, conductor=False):
+        t = _tensors(model, 1, 16, 16)
+        names = model.input_names
+        t[names.index("albedo")][:] = 0.7
+        t[names.index("albedo")][..., :8] = 0.0
+        t[names.index("color")][:] = 0.01
+        t[names.index("color")][..., :8] = 15.7
+        t[names.index("history")][:] = 0.0
+        if conductor:
+            t[names.index("albedo")][..., 8:] = 58.0
+        if "emissive" in names:
+            t[names.index("emissive")][:] = 0.0
+            t[names.index("emissive")][..., :8] = 1.0
+        return t
+
+    bound = 15.7 * (0.7 + ALBEDO_EPS) + 1e-4      # a wall pixel at most the light's own value
+    with torch.no_grad():
+        assert float(plain(*scene(plain))[0][..., 8:].max()) > 10 * bound   # the halo, without the layer
+        t = scene(lit)
+        out, accum = lit(*t)
+        assert float(out[..., 8:].max()) <= bound
+        assert float(out[..., :8].min()) >= 0.01 * (1 + ALBEDO_EPS) - 1e-6
+        names = lit.input_names
+        m = modulation_albedo(t[names.index("albedo")], t[names.index("emissive")], clamp=True)
+        want = temporal_accumulate(demodulate(t[names.index("color")], m), t[names.index("prev_accum")],
+                                   t[names.index("history")], t[names.index("accum_weight")])
+        torch.testing.assert_close(accum, want)
+        out = lit(*scene(lit, conductor=True))[0]
+        assert float(out[..., 8:].max()) <= 15.7 * (1 + ALBEDO_EPS) + 1e-4
+        unclamped = build_model(_lit_spec(clamp=False)).eval()
+        unclamped.load_state_dict(lit.state_dict())
+        assert float(unclamped(*scene(unclamped, conductor=True))[0][..., 8:].max()) > 15.7 * 1.5
 
 
 def test_params_and_builder_are_validated():

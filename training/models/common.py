@@ -53,6 +53,16 @@ def emitter_albedo(albedo: torch.Tensor, emissive: torch.Tensor | None) -> torch
     return albedo + e * (1.0 - albedo)
 
 
+def modulation_albedo(albedo: torch.Tensor, emissive: torch.Tensor | None = None,
+                      clamp: bool = False) -> torch.Tensor:
+    """The albedo a model (de)modulates by, (N, 3, H, W): ``albedo`` clamped to [0, 1] when
+    ``clamp`` (Mitsuba's albedo AOV of a rough conductor reaches 58, and re-modulating a
+    filtered irradiance by it turns a firefly into a blotch: docs/results/scale), then
+    :func:`emitter_albedo` with ``emissive``. With neither it is ``albedo`` itself, as the
+    models without these options were trained."""
+    return emitter_albedo(albedo.clamp(0.0, 1.0) if clamp else albedo, emissive)
+
+
 def remodulate(irradiance: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
     """Inverse of :func:`demodulate`: irradiance · (albedo + ALBEDO_EPS)."""
     return irradiance * (albedo + ALBEDO_EPS)

@@ -43,7 +43,10 @@ gradient; their kinks sit on cell boundaries, where the trilinear weights are co
 Demodulation.  0 albedo (misses, delta BSDFs) is handled as in WSKPN, by the one
 :data:`training.models.common.ALBEDO_EPS`: irradiance = radiance / (albedo + ALBEDO_EPS) is
 finite everywhere and re-modulation multiplies by the same factor, so a constant-irradiance
-image comes back exactly.
+image comes back exactly. A spec that adds the ``emissive`` layer demodulates lights by 1, and
+``albedo_clamp`` by the albedo in [0, 1] (:func:`training.models.common.modulation_albedo`,
+shared with WSKPN); the temporal stage, the guide's demodulation and the slice's re-modulation
+all use that one albedo, while the GuideNet still sees the albedo layer as rendered.
 """
 from __future__ import annotations
 
@@ -58,7 +61,7 @@ from torch import nn
 from mcdenoise.runtime.contract import HISTORY, state_input_name, state_weight_name
 from mcdenoise.runtime.transfer import luminance as _luminance
 from mcdenoise.training.models.common import (ACCUM, TemporalStage, accum_interface, aux_features, bind_inputs,
-                                    check_accum_model_spec, demodulate, remodulate,
+                                    check_accum_model_spec, demodulate, modulation_albedo, remodulate,
                                     temporal_accumulate)
 from mcdenoise.training.specs import ModelSpec, SpecError, register
 
@@ -67,6 +70,9 @@ GUIDE_RANGE = 255.0
 #: Pixel layers NBG reads, and the channel count of the GuideNet input.
 LAYERS = ("color", "albedo", "normal", "depth")
 N_FEATURES = 10
+#: Layers a spec may add: ``emissive`` (an 11th GuideNet channel, and lights demodulated by 1:
+#: :func:`training.models.common.emitter_albedo`), as in WSKPN.
+OPTIONAL_LAYERS = ("emissive",)
 #: Name of the state tensor of the temporal stage (accumulated *demodulated* radiance).
 #: Outlier removal (§5, after [KBS15]): a pixel whose luminance exceeds the mean of its 8
 #: neighbours by more than OUTLIER_SIGMAS of their standard deviation *and* by more than
@@ -101,6 +107,8 @@ class NBGParams:
     normalization: "cell" (the paper, Eq. 10 + 13: each non-empty cell holds the weighted mean
         of its pixels and slicing averages non-empty cells) or "homogeneous" (classic bilateral
         grid: slice the weighted sums and divide by the sliced weight sum).
+    albedo_clamp: (de)modulate by the albedo clamped to [0, 1]
+        (:func:`training.models.common.modulation_albedo`; off, as the shipped models trained).
     """
 
     layers: int = 2
@@ -112,6 +120,7 @@ class NBGParams:
     outlier_removal: bool = False
     alpha: float = 0.2
     normalization: Literal["cell", "homogeneous"] = "cell"
+    albedo_clamp: bool = False
 
     def __post_init__(self):
         if self.layers < 2:
@@ -376,26 +385,29 @@ class NBGTemporalStage(TemporalStage):
 class GuideStage(nn.Module):
     """Stage "guide": features -> GuideNet -> guides (sigmoid) and blend weights.
 
-    ``forward(x, albedo, normal, depth)``: x is the accumulated irradiance when a temporal
-    stage ran before (``demodulated=True``), else the colour, cleaned and demodulated here.
+    ``forward(x, albedo, normal, depth, emissive=None, modulation=None)``: x is the accumulated
+    irradiance when a temporal stage ran before (``demodulated=True``), else the colour, cleaned
+    and demodulated here; ``modulation`` (N, 3, H, W) is the albedo it is (de)modulated by
+    (default ``albedo``), ``emissive`` (N, 1, H, W) the GuideNet's 11th channel.
     Returns (irradiance (N, 3, H, W), [guide_s (N, 1, H, W)], [w_s (N, 1, H, W)])."""
 
-    def __init__(self, params: NBGParams, transfer: str, demodulated: bool):
+    def __init__(self, params: NBGParams, transfer: str, demodulated: bool, emissive: bool = False):
         super().__init__()
         self.grids = params.grids
         self.transfer = transfer
         self.demodulated = demodulated
         self.outlier_removal = params.outlier_removal
         cout = params.grids + (params.grids if params.grids > 1 else 0)
-        self.net = GuideNet(N_FEATURES, cout, params.layers, params.width, params.dense, params.growth)
+        self.net = GuideNet(N_FEATURES + int(emissive), cout, params.layers, params.width, params.dense, params.growth)
 
-    def forward(self, x, albedo, normal, depth):
+    def forward(self, x, albedo, normal, depth, emissive=None, modulation=None):
+        m = albedo if modulation is None else modulation
         if self.demodulated:
-            irr, radiance = x, remodulate(x, albedo)
+            irr, radiance = x, remodulate(x, m)
         else:
             radiance = remove_outliers(x) if self.outlier_removal else x
-            irr = demodulate(radiance, albedo)
-        raw = self.net(aux_features(radiance, albedo, normal, depth, self.transfer))
+            irr = demodulate(radiance, m)
+        raw = self.net(aux_features(radiance, albedo, normal, depth, self.transfer, emissive))
         g = self.grids
         guides = [torch.sigmoid(raw[:, i:i + 1]) for i in range(g)]
         weights = blend_weights(raw[:, g:]) if g > 1 else []
@@ -449,7 +461,7 @@ class NBG(nn.Module):
         self.temporal_enabled = temporal
         if temporal:
             self.temporal = NBGTemporalStage(params.alpha, params.outlier_removal)
-        self.guide = GuideStage(params, transfer, demodulated=temporal)
+        self.guide = GuideStage(params, transfer, demodulated=temporal, emissive="emissive" in layers)
         self.splat = SplatStage(params)
         self.slice = SliceStage(params)
         self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
@@ -459,13 +471,14 @@ class NBG(nn.Module):
 
     def forward(self, *inputs):
         t = bind_inputs(self, inputs)
-        x = t["color"]
+        x, e = t["color"], t.get("emissive")
+        m = modulation_albedo(t["albedo"], e, self.params.albedo_clamp)
         if self.temporal_enabled:
-            x = self.temporal(x, t["albedo"], t[state_input_name(ACCUM)], t[HISTORY],
+            x = self.temporal(x, m, t[state_input_name(ACCUM)], t[HISTORY],
                               t.get(state_weight_name(ACCUM)))
-        irr, guides, weights = self.guide(x, t["albedo"], t["normal"], t["depth"])
+        irr, guides, weights = self.guide(x, t["albedo"], t["normal"], t["depth"], e, m)
         grids, coords = self.splat(irr, guides)
-        out = self.slice(grids, coords, weights, t["albedo"])
+        out = self.slice(grids, coords, weights, m)
         return (out, irr) if self.temporal_enabled else (out,)
 
     def deploy(self) -> "NBG":
@@ -483,7 +496,7 @@ def build_nbg(spec: ModelSpec) -> NBG:
     stages (["temporal",] "guide", "splat", "slice") and the state ([accum, 3] iff there is a
     temporal stage)."""
     params = spec.params_as(NBGParams)
-    temporal = check_accum_model_spec(spec, "nbg", LAYERS, ("guide", "splat", "slice"))
+    temporal = check_accum_model_spec(spec, "nbg", LAYERS, ("guide", "splat", "slice"), OPTIONAL_LAYERS)
     state = spec.state[0] if spec.state else None
     if state is not None and state.alpha and state.alpha != params.alpha:
         raise SpecError(f"{spec.path or spec.name}: [[state]] accum alpha {state.alpha} differs from "

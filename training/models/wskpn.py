@@ -36,7 +36,7 @@ from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, state_input_name
 from mcdenoise.training.models.common import (ACCUM, ALBEDO_EPS, TemporalStage, accum_interface,  # noqa: F401
-                                    aux_features, bind_inputs, check_accum_model_spec, emitter_albedo,
+                                    aux_features, bind_inputs, check_accum_model_spec, modulation_albedo,
                                     temporal_accumulate)
 from mcdenoise.training.specs import ModelSpec, register
 
@@ -454,9 +454,7 @@ class ReconstructionStage(nn.Module):
 
     def forward(self, accum, albedo, preds, emissive=None):
         m = len(self.kernel_sizes)
-        if self.albedo_clamp:
-            albedo = albedo.clamp(0.0, 1.0)
-        modulation = emitter_albedo(albedo, emissive) + ALBEDO_EPS
+        modulation = modulation_albedo(albedo, emissive, self.albedo_clamp) + ALBEDO_EPS
         x = accum / modulation
         h, w = x.shape[-2], x.shape[-1]
         if self.multiple > 1:
