@@ -142,6 +142,98 @@ def test_flops_single_conv_exact():
     assert c2.fmas == 4 * 5 * 10 * 4 * 25 and c2.flops == 2 * c2.fmas + 4 * 5 * 10
 
 
+def _loop_model(trips: int, padded: bool = False):
+    """y = x + 1 repeated ``trips`` times by a Loop whose body also multiplies by 2 on every
+    iteration but the first (an If: the else branch is a Mul, the then branch an Identity);
+    ``padded``: the body also emits (x + 1) padded by 1 pixel, times 3, as a scan output (a cost
+    not proportional to the pixel count)."""
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, ["n", 3, "h", "w"])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, None)
+    inits = [helper.make_tensor("trips", TensorProto.INT64, [], [trips]),
+             helper.make_tensor("cond", TensorProto.BOOL, [], [True]),
+             helper.make_tensor("one", TensorProto.FLOAT, [], [1.0]),
+             helper.make_tensor("two", TensorProto.FLOAT, [], [2.0]),
+             helper.make_tensor("zero", TensorProto.INT64, [], [0])]
+    then = helper.make_graph([helper.make_node("Identity", ["a"], ["t"], name="then_id")], "then", [],
+                             [helper.make_tensor_value_info("t", TensorProto.FLOAT, None)])
+    other = helper.make_graph([helper.make_node("Mul", ["a", "two"], ["e"], name="else_mul")], "else", [],
+                              [helper.make_tensor_value_info("e", TensorProto.FLOAT, None)])
+    body = helper.make_graph(
+        [helper.make_node("Add", ["v", "one"], ["a"], name="body_add"),
+         helper.make_node("Equal", ["i", "zero"], ["first"], name="body_eq"),
+         helper.make_node("If", ["first"], ["v_out"], name="body_if", then_branch=then, else_branch=other),
+         helper.make_node("Identity", ["c"], ["c_out"], name="body_cond")]
+        + ([helper.make_node("Pad", ["a", "pads"], ["p"], name="body_pad"),
+            helper.make_node("Mul", ["p", "three"], ["q"], name="body_mul3")] if padded else []), "body",
+        [helper.make_tensor_value_info("i", TensorProto.INT64, []),
+         helper.make_tensor_value_info("c", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("v", TensorProto.FLOAT, None)],
+        [helper.make_tensor_value_info("c_out", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("v_out", TensorProto.FLOAT, None)]
+        + ([helper.make_tensor_value_info("q", TensorProto.FLOAT, None)] if padded else []))
+    inits += [helper.make_tensor("pads", TensorProto.INT64, [8], [0, 0, 1, 1, 0, 0, 1, 1]),
+              helper.make_tensor("three", TensorProto.FLOAT, [], [3.0])]
+    outs = ["y"] + (["qs"] if padded else [])
+    loop = helper.make_node("Loop", ["trips", "cond", "x"], outs, name="/kernels/loop", body=body)
+    g = helper.make_graph([loop], "t", [x], [y] + ([helper.make_tensor_value_info("qs", TensorProto.FLOAT, None)]
+                                                    if padded else []), inits)
+    return helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+
+
+@pytest.mark.parametrize("trips", [1, 4])
+def test_flops_inside_a_loop_count_every_iteration_and_the_branch_taken(trips):
+    """A Loop body's nodes count once per iteration, an If's only in the branch it took, at the
+    shapes they ran at, in the stage of the Loop; nothing is left uncounted."""
+    c = count_flops(_loop_model(trips), width=5, height=4, stages=["kernels"])
+    n = 3 * 4 * 5
+    assert not c.uncounted
+    assert c.per_op["Add"]["flops"] == trips * n
+    assert c.per_op.get("Mul", {"flops": 0})["flops"] == (trips - 1) * n
+    assert c.per_op["Equal"]["flops"] == trips      # a scalar compare per iteration
+    assert c.flops == c.per_stage["kernels"]["flops"] == (2 * trips - 1) * n + trips
+
+
+def test_flops_inside_a_loop_at_a_large_size_come_from_two_small_runs_only_where_exact(monkeypatch):
+    """Above PROFILE_PIXELS the body is profiled at two smaller sizes of the frame's aspect and
+    carried to the full size where that is exact: counts proportional to the pixel count, and
+    scalars'. A node whose cost is not (a padded tensor's) sends the count to the full size."""
+    from mcdenoise.training import flops
+
+    monkeypatch.setattr(flops, "PROFILE_PIXELS", 16)
+    monkeypatch.setattr(flops, "PROFILE_MIN_PIXELS", 4)
+    runs = []
+    real = flops._profiled_costs
+    monkeypatch.setattr(flops, "_profiled_costs", lambda m, w, h, *a: runs.append((w, h)) or real(m, w, h, *a))
+    w, h, trips = 12, 8, 3
+    c = count_flops(_loop_model(trips), width=w, height=h, stages=["kernels"])
+    assert runs == [(3, 2), (6, 4)]           # W/d x H/d for the two largest divisors d of gcd(12, 8)
+    assert c.per_op["Add"]["flops"] == trips * 3 * w * h and c.per_op["Equal"]["flops"] == trips
+    assert c.per_op["Mul"]["flops"] == (trips - 1) * 3 * w * h
+    runs.clear()
+    c = count_flops(_loop_model(trips, padded=True), width=w, height=h, stages=["kernels"])
+    assert runs == [(3, 2), (6, 4), (12, 8)]
+    assert c.flops == (2 * trips - 1) * 3 * w * h + trips + trips * 3 * (w + 2) * (h + 2)
+
+
+def test_flops_of_anf_count_its_taps_at_the_kernel_size_setting():
+    """ANF's taps are a Loop over kernel_size² taps (the spatial kernels skip the centre): one
+    exp per pixel per tap, so Exp's count is H·W·(K·(k²−1) + k²) at each kernel size k, and
+    the kernels stage is counted, not left out."""
+    from mcdenoise.training.models.anf import ANFParams
+    from mcdenoise.training.specs import load_spec
+
+    path = next(p for p in shipped_models() if p.endswith("anf-s.onnx"))
+    kernels = load_spec("anf-s").params_as(ANFParams).kernels
+    w, h = 12, 8
+    got = {}
+    for k in (3, 5):
+        c = count_flops(path, w, h, settings={"kernel_size": k})
+        assert not c.uncounted
+        assert c.per_op["Exp"]["flops"] == w * h * (kernels * (k * k - 1) + k * k)
+        got[k] = c.per_stage["kernels"]["flops"]
+    assert got[5] > 2 * got[3] > 0
+
+
 def test_flops_of_a_model_conv_layers():
     path = next(p for p in shipped_models() if "wskpn-3" in p)
     model = onnx.load(path)

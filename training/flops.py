@@ -38,6 +38,18 @@ is one multiply-add and counts as 2 FLOPs):
 * Data movement and shape ops (:data:`FREE`: Slice, Concat, Reshape, Transpose, Gather, Pad,
   Cast, Shape...): 0.
 * Anything else is *not counted*: listed in :attr:`FlopCount.uncounted`, never silently 0.
+* Control flow (``Loop``, ``If``, ``Scan``; ANF's taps are a ``Loop`` over kernel_size² taps
+  with an ``If`` that skips the centre): the nodes inside are counted by the rules above, once
+  per execution, from one profiled onnxruntime run of the bound graph on zero inputs with the
+  run-time settings at their defaults (or ``settings``). That is how many times each body runs
+  and which branch each ``If`` takes, with the shapes it ran at; the cost goes to the stage of
+  the top-level node that holds the body. Where a body's value decides a branch, zero inputs
+  decide it (ANF's branches depend only on the tap index). A profiled run at 720p costs
+  minutes (anf-s: 100 s here), so above :data:`PROFILE_PIXELS` the run is made at the two
+  smallest sizes of the frame's aspect (W/d x H/d, d dividing both) and a node's count is
+  carried to the full size only where it is the same at both (a scalar's) or grows exactly with
+  the pixel count; as a cost bilinear in H and W is a quadratic in d, that holds at every size.
+  Anything else is counted at the full size.
 
 Parameters: elements of the floating-point initializers that feed a weight input of
 ``Conv``, ``ConvTranspose``, ``Gemm``, ``MatMul``, ``Einsum``, the normalisations or ``PRelu``
@@ -49,7 +61,9 @@ scopes, as in :func:`runtime.timing.graph_stage_times`); other nodes go to :data
 """
 from __future__ import annotations
 
+import math
 import os
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -308,12 +322,185 @@ def _stages_from_names(model) -> list[str]:
                        if n.name.startswith("/") and n.name.count("/") >= 2})
 
 
-def count_flops(model, width: int, height: int, stages=None, batch: int = 1) -> FlopCount:
+#: Ops whose cost is that of the subgraphs they run.
+CONTROL_FLOW = frozenset({"If", "Loop", "Scan"})
+
+
+def _subgraphs(node):
+    import onnx
+
+    for a in node.attribute:
+        if a.type == onnx.AttributeProto.GRAPH:
+            yield a.g
+        elif a.type == onnx.AttributeProto.GRAPHS:
+            yield from a.graphs
+
+
+def _subgraph_nodes(model, stages) -> dict[str, tuple]:
+    """Every node inside a control-flow node's subgraphs, at any depth: name -> (NodeProto,
+    stage of the top-level node that holds it).  ValueError on an unnamed one or a name used
+    twice (the profile names executed nodes by name only)."""
+    found: dict[str, tuple] = {}
+    top = {n.name for n in model.graph.node}
+
+    def walk(graph, stage):
+        for n in graph.node:
+            if not n.name or n.name in found or n.name in top:
+                raise ValueError(f"count_flops: a node inside a subgraph is {'unnamed' if not n.name else 'named twice: ' + n.name!r} "
+                                 f"({n.op_type}); its executions cannot be told apart in the profile")
+            found[n.name] = (n, stage)
+            for g in _subgraphs(n):
+                walk(g, stage)
+
+    for node in model.graph.node:
+        for g in _subgraphs(node):
+            walk(g, stage_of(node.name, stages))
+    return found
+
+
+_SHAPES = r'\[((?:\{"\w+":\[[\d,]*\]\},?)*)\]'
+_NAME = re.compile(r'"name" :"([^"]*)_kernel_time"')
+_INPUTS = re.compile(r'"input_type_shape" : ' + _SHAPES)
+_OUTPUTS = re.compile(r'"output_type_shape" : ' + _SHAPES)
+_DIMS = re.compile(r'\{"\w+":\[([\d,]*)\]\}')
+
+
+def _executed(model, settings: dict) -> list[tuple[str, list, list]]:
+    """(node name, input shapes, output shapes) of every kernel one onnxruntime run of ``model``
+    executes, subgraph bodies included (a profiled run, optimisations off so the nodes are the
+    graph's own), on zero inputs with the int64 scalar ``settings`` by input name."""
+    import tempfile
+
+    import onnx
+    import onnxruntime as ort
+
+    feeds = {}
+    init = {i.name for i in model.graph.initializer}
+    for inp in model.graph.input:
+        if inp.name in init:
+            continue
+        t = inp.type.tensor_type
+        dt = onnx.helper.tensor_dtype_to_np_dtype(t.elem_type)
+        feeds[inp.name] = (np.array(settings[inp.name], dtype=dt) if inp.name in settings
+                           else np.zeros([d.dim_value for d in t.shape.dim], dtype=dt))
+    with tempfile.TemporaryDirectory() as tmp:
+        so = ort.SessionOptions()
+        so.log_severity_level = 3
+        so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        so.enable_profiling = True
+        so.profile_file_prefix = os.path.join(tmp, "flops")
+        sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+        sess.run(None, feeds)
+        # One event a line; a regex reads the three fields needed (json.load of the 45 MB an
+        # anf-s run writes took 3.4 s, for the thread statistics of every event).
+        out = []
+        with open(sess.end_profiling()) as fh:
+            for line in fh:
+                name = _NAME.search(line)
+                if name and '"cat" : "Node"' in line:
+                    out.append((name[1], *([tuple(int(d) for d in dims.split(",") if d) for dims in _DIMS.findall(m[1])]
+                                           if (m := rx.search(line)) else [] for rx in (_INPUTS, _OUTPUTS))))
+    return out
+
+
+def _default_settings(model) -> dict:
+    try:
+        from mcdenoise.runtime.contract import parse_contract
+
+        contract = parse_contract({p.key: p.value for p in model.metadata_props})
+    except ValueError:
+        return {}
+    return {st["input"]: st["default"] for st in contract.settings}
+
+
+def _add(res: FlopCount, name: str, op: str, stage: str, fl: int, fm: int, nodes: int = 1) -> None:
+    res.flops += fl
+    res.fmas += fm
+    for d, key in ((res.per_stage, stage), (res.per_op, op)):
+        e = d.setdefault(key, {"flops": 0, "fmas": 0, "nodes": 0})
+        e["flops"] += fl
+        e["fmas"] += fm
+        e["nodes"] += nodes
+    res.per_node.append((name, op, stage, fl, fm))
+
+
+#: Frames up to this many pixels have their control flow profiled at their own size.
+PROFILE_PIXELS = 64 * 64
+#: The smallest size the scaled profile runs at (see the module docstring).
+PROFILE_MIN_PIXELS = 32 * 32
+
+
+def _profiled_costs(model, width: int, height: int, batch: int, stages, settings: dict):
+    """({subgraph node name: [flops, fmas] over its executions}, {op: uncounted executions}) of one
+    profiled run of ``model`` bound to ``width`` x ``height``."""
+    bound = _bind_inputs(model, width, height, batch)
+    inner = _subgraph_nodes(bound, stages)
+    totals: dict[str, list] = {}
+    uncounted: dict[str, int] = {}
+    for name, ins, outs in _executed(bound, settings):
+        if name not in inner:
+            continue
+        node, _ = inner[name]
+        if node.op_type in CONTROL_FLOW:
+            continue                  # its own body's nodes are in the profile
+        shapes = dict(zip([i for i in node.input if i], ins))
+        shapes.update(zip([o for o in node.output if o], outs))
+        cost = node_cost(node, shapes)
+        if cost is None:
+            uncounted[node.op_type] = uncounted.get(node.op_type, 0) + 1
+            continue
+        t = totals.setdefault(name, [0, 0])
+        t[0] += cost[0]
+        t[1] += cost[1]
+    return totals, uncounted
+
+
+def _scaled_costs(model, width: int, height: int, batch: int, stages, settings: dict):
+    """:func:`_profiled_costs` at ``width`` x ``height``, from two smaller runs where they give it
+    exactly (the module docstring), else from a run at that size."""
+    g = math.gcd(width, height)
+    divs = [d for d in range(g, 1, -1) if g % d == 0 and (width // d) * (height // d) >= PROFILE_MIN_PIXELS]
+    if width * height > PROFILE_PIXELS and len(divs) >= 2:
+        (a, ua), (b, ub) = (_profiled_costs(model, width // d, height // d, batch, stages, settings) for d in divs[:2])
+        pa, pb, p = ((width // d) * (height // d) for d in (*divs[:2], 1))
+        out = {}
+        for name in a if a.keys() == b.keys() and ua == ub else ():
+            pair = []
+            for xa, xb in zip(a[name], b[name]):
+                if xa == xb:
+                    pair.append(xa)
+                elif xb * pa == xa * pb and xa * p % pa == 0:
+                    pair.append(xa * p // pa)
+                else:
+                    break
+            if len(pair) < 2:
+                break
+            out[name] = pair
+        else:
+            if a.keys() == b.keys() and ua == ub:
+                return out, ua
+    return _profiled_costs(model, width, height, batch, stages, settings)
+
+
+def _count_subgraphs(res: FlopCount, model, stages, settings: dict, batch: int) -> None:
+    """Add the executed subgraph nodes of ``model`` (see the module docstring) to ``res``."""
+    inner = _subgraph_nodes(model, stages)
+    totals, uncounted = _scaled_costs(model, res.width, res.height, batch, stages, settings)
+    for op, n in uncounted.items():
+        res.uncounted[op] = res.uncounted.get(op, 0) + n
+    for name, (fl, fm) in totals.items():
+        node, stage = inner[name]
+        _add(res, name, node.op_type, stage, fl, fm)
+
+
+def count_flops(model, width: int, height: int, stages=None, batch: int = 1,
+                settings: dict | None = None) -> FlopCount:
     """Count FLOPs, FMAs and parameters of ``model`` (path or ``onnx.ModelProto``) for one
     frame of ``width`` x ``height`` (batch ``batch``).  ``stages``: stage names for the
     per-stage split (default: the mcdenoise contract's stages, else the graph's top-level
-    ``/<scope>/`` names).  Raises ValueError when shape inference leaves a counted node's
-    shape unknown."""
+    ``/<scope>/`` names).  ``settings``: values of int64 scalar setting inputs by input name for
+    a graph with control flow (default: the contract's defaults), e.g. ANF's kernel_size.
+    Raises ValueError when shape inference leaves a counted node's shape unknown."""
     model = _load(model)
     if stages is None:
         stages = _stages_from_names(model)
@@ -323,23 +510,15 @@ def count_flops(model, width: int, height: int, stages=None, batch: int = 1) -> 
     for s in list(stages) + [OTHER]:
         res.per_stage[s] = {"flops": 0, "fmas": 0, "nodes": 0}
     for node in bound.graph.node:
-        if node.op_type in ("If", "Loop", "Scan"):
-            res.uncounted[node.op_type] = res.uncounted.get(node.op_type, 0) + 1
+        if node.op_type in CONTROL_FLOW:
             continue
         cost = node_cost(node, shapes)
         if cost is None:
             res.uncounted[node.op_type] = res.uncounted.get(node.op_type, 0) + 1
             continue
-        fl, fm = cost
-        st = stage_of(node.name, stages)
-        res.flops += fl
-        res.fmas += fm
-        for d, key in ((res.per_stage, st), (res.per_op, node.op_type)):
-            e = d.setdefault(key, {"flops": 0, "fmas": 0, "nodes": 0})
-            e["flops"] += fl
-            e["fmas"] += fm
-            e["nodes"] += 1
-        res.per_node.append((node.name, node.op_type, st, fl, fm))
+        _add(res, node.name, node.op_type, stage_of(node.name, stages), *cost)
+    if any(n.op_type in CONTROL_FLOW for n in bound.graph.node):
+        _count_subgraphs(res, model, stages, {**_default_settings(bound), **(settings or {})}, batch)
     if not res.per_stage[OTHER]["nodes"]:
         del res.per_stage[OTHER]
     weight_names: set[str] = set()
