@@ -47,6 +47,39 @@ def test_one_spp_colour_is_one_of_the_samples(tiny_dataset):
     np.testing.assert_allclose(item["color"][0].transpose(1, 2, 0), fr.samples[0, ..., 0:3], rtol=1e-6)
 
 
+def test_firefly_augmentation_adds_outlier_samples_and_leaves_the_rest(tiny_dataset):
+    """With ``fireflies`` a training item's colour gets a few outliers far above the crop's
+    reference mean (in one sample, so the n-sample mean shows value / n), the reference and
+    every other pixel as without the option; validation items and fireflies=0 are unchanged."""
+    kw = dict(crop=48, spp_choices=(1, 2, 4), window=3)
+    plain = SequenceDataset(tiny_dataset, "all", LAYERS, **kw)
+    flies = SequenceDataset(tiny_dataset, "all", LAYERS, fireflies=0.01, **kw)
+    per_sample = SequenceDataset(tiny_dataset, "all", (), fireflies=0.01, sample_groups=("radiance",), **kw)
+    changed = 0
+    for i in range(6):
+        a, b = plain[i], flies[i]
+        np.testing.assert_array_equal(a["reference"], b["reference"])
+        diff = np.abs(b["color"] - a["color"]).max(axis=1)            # (T, c, c)
+        hit = diff > 0
+        changed += int(hit.sum())
+        n = int(a["spp"])
+        for t in range(3):
+            if hit[t].any():
+                # the outlier sample's share of the pixel mean: at least 50x the reference mean
+                # over n, less the sample it replaced (well under 10x that mean here)
+                assert diff[t][hit[t]].min() >= 40 / n * a["reference"][t].mean()
+        np.testing.assert_array_equal(a["albedo"], b["albedo"])
+        s = per_sample[i]["samples"]                                   # (T, n, 3, c, c)
+        assert s.shape[:2] == (3, int(per_sample[i]["spp"])) and s.max() >= 50 * per_sample[i]["reference"].mean()
+    # 6 items x 3 frames x 48² pixels x 0.01 ≈ 415 outliers expected
+    assert 200 < changed < 800
+    val = SequenceDataset(tiny_dataset, "all", LAYERS, fireflies=0.01, augment=False, **kw)
+    ref = SequenceDataset(tiny_dataset, "all", LAYERS, augment=False, **kw)
+    np.testing.assert_array_equal(val[0]["color"], ref[0]["color"])
+    with pytest.raises(ValueError, match=r"fireflies: a mean count per pixel in \[0, 1\)"):
+        SequenceDataset(tiny_dataset, "all", LAYERS, fireflies=2.0, **kw)
+
+
 def test_the_emissive_layer_is_the_drawn_samples_share_of_lights(tiny_dataset, tmp_path):
     # the tiny set's scenes have no light in view: a copy of one sequence gets some, its
     # per-sample flags set in a corner, one sample in two at the corner's edge

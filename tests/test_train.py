@@ -103,11 +103,15 @@ def test_window_loss_adds_the_temporal_term_on_frame_differences():
 
 def test_window_spp_and_temporal_weight_reach_the_run(tiny_dataset, tmp_path, capsys):
     run = tmp_path / "r"
-    train("wskpn-3", tiny_dataset, run, steps=1, window=3, spp=[1, 2, 4], temporal_weight=0.25, **KW)
+    train("wskpn-3", tiny_dataset, run, steps=1, window=3, spp=[1, 2, 4], temporal_weight=0.25, fireflies=1e-3, **KW)
     cfg = json.loads((run / runs.CONFIG_FILE).read_text())
     assert cfg["window"] == 3 and cfg["spp"] == [1, 2, 4] and cfg["temporal_weight"] == 0.25
+    assert cfg["fireflies"] == 1e-3
     assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "r2"), "--window", "0"]) == 2
     assert "--window must be >= 1" in capsys.readouterr().err
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "r3"), "--fireflies", "1"]) == 2
+    assert "--fireflies must be a mean count per pixel in [0, 1)" in capsys.readouterr().err
+    assert not (tmp_path / "r3").exists()
 
 
 def test_two_processes_match_one_with_the_same_global_batch(tiny_dataset, tmp_path):

@@ -17,6 +17,12 @@ Item tensors, float32, leading time axis T:
   groups' channels only); with ``samples=True`` instead the raw stored features.
 Every item of one batch must have the same n to stack: :meth:`SequenceDataset.batch_spp`
 draws it per batch and ``dataset[index, n]`` makes an item with it.
+
+Firefly augmentation (``fireflies`` > 0, training items only): each frame of an item gets a
+Poisson number (mean ``fireflies`` per pixel of the crop) of outlier samples whose radiance is
+a log-uniform :data:`FIREFLY_RANGE` multiple of the crop's reference mean, in every channel,
+with the reference left as it is: the outliers ``mcdenoise stress`` injects (ANF Fig. 3,
+:func:`add_fireflies` is the one definition of both), taught as noise to remove.
 """
 from __future__ import annotations
 
@@ -30,6 +36,10 @@ import numpy as np
 from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
                             read_frame, read_meta)
 from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs, sample_channels, sample_inputs
+
+#: Firefly augmentation: the outlier's radiance over the crop's reference mean, drawn
+#: log-uniformly (the stress test's 500x lies inside).
+FIREFLY_RANGE = (50.0, 1000.0)
 
 #: Channels holding screen-space (x right, y down) vector components, per item key.
 SCREEN_VECTORS = {"normal": (0, 1), "motion": (0, 1),
@@ -108,6 +118,17 @@ def split(seqs: Sequence[SequenceInfo], part: str, val_fraction: float = 0.2) ->
     return [s for s in seqs if (s.seed in val) == (part == "val")]
 
 
+def add_fireflies(samples: np.ndarray, rng: np.random.Generator, value: float, count: int) -> np.ndarray:
+    """In place: ``count`` distinct pixels of ``samples`` (S, H, W, F), the frame format's
+    per-sample features, each get radiance ``value`` (linear HDR, every channel) in one sample
+    drawn uniformly. Returns the (count, 3) (sample, y, x) changed."""
+    n, h, w = samples.shape[:3]
+    flat = rng.choice(h * w, size=min(count, h * w), replace=False)
+    s, y, x = rng.integers(0, n, size=len(flat)), flat // w, flat % w
+    samples[s, y, x, SAMPLE_GROUPS["radiance"]] = value
+    return np.stack([s, y, x], 1)
+
+
 def dihedral(arr: np.ndarray, k: int, vector: tuple[int, int] | None = None) -> np.ndarray:
     """Apply image symmetry k in 0..7 to a (..., C, H, W) array: bit 0 transposes (swap x, y),
     bit 1 flips x, bit 2 flips y.  ``vector`` names the channels (cx, cy) holding screen
@@ -148,11 +169,13 @@ class SequenceDataset:
       max_sequences: keep only the first N sequences of the split (sorted by scene seed).
       sample_groups: a per-sample model's groups (names, in order): items carry its
         ``samples`` input.
+      fireflies: mean outlier samples per pixel per frame (module docstring; 0: none); only
+        with ``augment``.
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
-                 samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=()):
+                 samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=(), fireflies=0.0):
         self.seqs = split(discover(root), part, val_fraction)
         if max_sequences is not None:
             if max_sequences < 1:
@@ -175,6 +198,9 @@ class SequenceDataset:
         groups = ("radiance", "albedo", "normal", "depth", "position") + (("emissive",) if "emissive" in self.layers else ())
         #: the per-sample features a pixel model's cache keeps, by index into SAMPLE_FEATURES
         self._columns = [i for g in groups for i in range(SAMPLE_GROUPS[g].start, SAMPLE_GROUPS[g].stop)]
+        if not 0.0 <= fireflies < 1.0:
+            raise ValueError(f"fireflies: a mean count per pixel in [0, 1), got {fireflies}")
+        self.fireflies = float(fireflies)
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -235,6 +261,9 @@ class SequenceDataset:
         seq = self.seqs[seq_i]
         h, w = self._frame(seq.frames[t0]).size
         out: dict[str, list] = {}
+        # its own stream (not drawn from rng), so all else in the item is as without fireflies
+        flies = np.random.default_rng([self.seed, self.epoch, seq_i, t0, y0, x0, n, k, 3]) \
+            if self.fireflies and rng is not None else None
         for t in range(t0, t0 + self.window):
             fr = self._frame(seq.frames[t])
             if fr.size != (h, w):
@@ -246,8 +275,11 @@ class SequenceDataset:
                 full = np.zeros(sub.shape[:-1] + (len(SAMPLE_FEATURES),), np.float32)
                 full[..., self._columns] = sub
                 sub = full
-            px = pixel_means(sub)
             win = (slice(y0, y0 + c), slice(x0, x0 + c))
+            if flies is not None and (count := int(flies.poisson(self.fireflies * c * c))):
+                value = float(np.mean(fr.reference[win], dtype=np.float64)) * float(np.exp(flies.uniform(*np.log(FIREFLY_RANGE))))
+                add_fireflies(sub, flies, value, count)     # sub is this item's copy
+            px = pixel_means(sub)
             crop = Frame(**px, motion=fr.motion[win],
                          valid=None if fr.valid is None else fr.valid[win],
                          reference=fr.reference[win], meta=fr.meta, path=fr.path)

@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 from mcdenoise.runtime.frames import SAMPLE_GROUPS, Frame, FrameError
+from mcdenoise.training.dataset import add_fireflies
 from mcdenoise.training.report import (
     compose,
     display,
@@ -87,24 +88,16 @@ DEFAULT_EXTRA = ("oidn-high", "svgf", "noisy")
 # ----------------------------------------------------------------------------------------------
 
 
-def _pick(rng: np.random.Generator, frame: Frame, density: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sample index, y, x) arrays of max(1, round(density * H * W)) distinct pixels."""
-    h, w = frame.size
-    n = max(1, int(round(density * h * w)))
-    flat = rng.choice(h * w, size=min(n, h * w), replace=False)
-    return rng.integers(0, frame.spp, size=len(flat)), flat // w, flat % w
-
-
 def inject_fireflies(frame: Frame, rng: np.random.Generator, factor: float = FIREFLY_FACTOR,
                      density: float = FIREFLY_DENSITY) -> tuple[Frame, np.ndarray]:
     """Outlier samples: about ``density`` per pixel get radiance ``factor`` x the mean of the
     frame's clean colour (all pixels and channels), in every channel.  Returns the new frame
     and the (n, 3) array of (sample, y, x) changed."""
-    s, y, x = _pick(rng, frame, density)
-    value = factor * float(np.mean(frame.color, dtype=np.float64))
+    h, w = frame.size
     samples = frame.samples.copy()
-    samples[s, y, x, SAMPLE_GROUPS["radiance"]] = value
-    return with_samples(frame, samples), np.stack([s, y, x], 1)
+    where = add_fireflies(samples, rng, factor * float(np.mean(frame.color, dtype=np.float64)),
+                          max(1, int(round(density * h * w))))
+    return with_samples(frame, samples), where
 
 
 def inject_nonfinite(frame: Frame, rng: np.random.Generator,

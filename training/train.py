@@ -167,6 +167,10 @@ def add_arguments(p):
                    help="consecutive frames per training item, unrolled with the history (default: spec)")
     p.add_argument("--spp", type=int, nargs="+", default=None,
                    help="input samples per pixel drawn per item, e.g. 1 2 4 8 (default: spec)")
+    p.add_argument("--fireflies", type=float, default=0.0, metavar="PER_PIXEL",
+                   help="firefly augmentation: mean outlier samples per pixel per training frame, at "
+                        "50-1000x the crop's reference mean, the reference unchanged (training.dataset; "
+                        "the stress test's 1e-3 is a good start; default 0: none)")
     p.add_argument("--max-sequences", type=int, default=None,
                    help="train on the first N sequences of the training split (by scene seed; nested subsets "
                         "for learning curves)")
@@ -234,7 +238,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           val_every: int = 0, quiet: bool = False, window: int | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
-          lr_schedule: str | None = None, init: str | None = None) -> dict:
+          lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -249,6 +253,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--spp must be counts >= 1, got {spp}")
     if temporal_weight is not None and not temporal_weight >= 0:
         raise ValueError(f"--temporal-weight must be >= 0, got {temporal_weight}")
+    if not 0.0 <= fireflies < 1.0:
+        raise ValueError(f"--fireflies must be a mean count per pixel in [0, 1), got {fireflies}")
     if device not in ("cpu", "cuda"):
         raise ValueError(f"--device must be cpu or cuda, got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
@@ -293,7 +299,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "regularizer_weight": tr.regularizer_weight, "lr_schedule": lr_schedule or "constant",
             "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
-            "max_sequences": max_sequences, "test_data": os.path.abspath(test_data) if test_data else None,
+            "max_sequences": max_sequences, "fireflies": fireflies, "test_data": os.path.abspath(test_data) if test_data else None,
             "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
                                                "chain_steps": init_ckpt["chain_steps"]},
         }
@@ -322,7 +328,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
                                 spp_choices=config["spp"], window=config["window"],
                                 seed=config["seed"], val_fraction=config["val_fraction"],
-                                max_sequences=config.get("max_sequences"), sample_groups=groups)
+                                max_sequences=config.get("max_sequences"), sample_groups=groups,
+                                fireflies=config.get("fireflies", 0.0))
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
                               val_fraction=config["val_fraction"], sample_groups=groups)
@@ -468,6 +475,6 @@ def main(args) -> int:
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
-                lr_schedule=args.lr_schedule, init=args.init)
+                lr_schedule=args.lr_schedule, init=args.init, fireflies=args.fireflies)
     print(json.dumps(row, indent=2))
     return 0
