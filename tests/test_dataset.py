@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 
-from mcdenoise.runtime.frames import SAMPLE_GROUPS, FrameError, read_frame, write_frame
+from mcdenoise.runtime.frames import SAMPLE_GROUPS, FrameError, read_frame
+from mcdenoise.runtime.writers import write_frame
 from mcdenoise.runtime.inputs import camera_axes
 from mcdenoise.runtime.temporal import reproject
 from mcdenoise.training.dataset import SequenceDataset, collate, dihedral, discover, split

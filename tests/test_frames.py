@@ -4,6 +4,7 @@ import OpenEXR
 import pytest
 
 from mcdenoise.runtime import frames as F
+from mcdenoise.runtime import writers as W
 
 
 def _frame(h=6, w=7, spp=2, seed=0):
@@ -22,7 +23,7 @@ def _write_raw(path, channels):
 
 def test_round_trip_is_exact(tmp_path):
     fr = _frame()
-    F.write_frame(tmp_path / "f.exr", fr)
+    W.write_frame(tmp_path / "f.exr", fr)
     back = F.read_frame(tmp_path / "f.exr")
     for layer in F.PIXEL_LAYERS:
         np.testing.assert_array_equal(getattr(back, layer.name), getattr(fr, layer.name))
@@ -37,7 +38,7 @@ def test_a_file_from_before_the_emissive_layer_gets_it_from_its_samples(tmp_path
     fr = _frame(spp=3)
     fr.samples[..., F.SAMPLE_GROUPS["emissive"]] = np.arange(3, dtype=np.float32)[:, None, None, None] < 1
     fr.emissive = None
-    F.write_frame(tmp_path / "f.exr", fr)
+    W.write_frame(tmp_path / "f.exr", fr)
     np.testing.assert_array_equal(F.read_frame(tmp_path / "f.exr").emissive, np.full((6, 7, 1), 1 / 3, np.float32))
     # from part of the samples it would be another mean: left out rather than made up
     assert F.read_frame(tmp_path / "f.exr", samples=1).emissive is None
@@ -84,7 +85,7 @@ def test_missing_file_names_it(tmp_path):
 def test_missing_channel_names_file_and_channel(tmp_path):
     fr = _frame()
     fr.albedo = None
-    F.write_frame(tmp_path / "f.exr", fr)
+    W.write_frame(tmp_path / "f.exr", fr)
     with pytest.raises(F.FrameError, match=r"f\.exr: missing channel 'albedo\.R'"):
         F.read_frame(tmp_path / "f.exr", require=("color", "albedo"))
     with pytest.raises(F.FrameError, match="missing layer 'albedo'"):
@@ -101,7 +102,7 @@ def test_partially_missing_layer_names_the_channel(tmp_path):
 
 
 def test_truncated_file_is_a_clear_error(tmp_path):
-    F.write_frame(tmp_path / "f.exr", _frame(h=32, w=32))
+    W.write_frame(tmp_path / "f.exr", _frame(h=32, w=32))
     data = (tmp_path / "f.exr").read_bytes()
     (tmp_path / "t.exr").write_bytes(data[: len(data) // 3])
     with pytest.raises(F.FrameError, match=r"t\.exr: .*(truncated|not a readable)"):
@@ -183,11 +184,11 @@ def test_validate_rejects_wrong_shapes():
 
 
 def test_describe_and_png(tmp_path):
-    F.write_frame(tmp_path / "f.exr", _frame())
+    W.write_frame(tmp_path / "f.exr", _frame())
     from mcdenoise.runtime.inspect import describe
 
     text = describe(tmp_path / "f.exr")
     assert "per-sample layers: 2 samples" in text and "scene_seed: 7" in text
-    F.write_png(tmp_path / "a.png", np.full((3, 4, 3), 0.5))
+    W.write_png(tmp_path / "a.png", np.full((3, 4, 3), 0.5))
     data = (tmp_path / "a.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and b"IHDR" in data

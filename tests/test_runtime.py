@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from mcdenoise.runtime.denoiser import Denoiser, ModelFileError
-from mcdenoise.runtime.frames import Frame, FrameError, read_frame, read_rgb, write_frame
+from mcdenoise.runtime.frames import Frame, FrameError, read_frame, read_rgb
+from mcdenoise.runtime.writers import write_frame
 from mcdenoise.runtime.inputs import frame_inputs
 from mcdenoise.training.methods import shipped_models
 from mcdenoise.training.harness import synthetic_frame

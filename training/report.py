@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mcdenoise.runtime import DATA_ROOT, timing
-from mcdenoise.runtime.frames import write_png
+from mcdenoise.runtime.writers import write_png
 from mcdenoise.runtime.transfer import reinhard_gamma
 from mcdenoise.training.methods import WithoutHistory
 from mcdenoise.training.scoring import pareto_front

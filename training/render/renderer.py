@@ -34,7 +34,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, frame_name, pixel_means, write_frame
+from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, frame_name, pixel_means
+from mcdenoise.runtime.writers import write_frame
 from mcdenoise.training.render import camera as cam
 from mcdenoise.training.render import materials, procedural
 
