@@ -17,13 +17,22 @@ an accumulated input (anything for model state), ``alpha`` (K,) the current fram
 ``prev_position``, ``prev_normal``. Outputs: ``warped<i>`` (accumulated where ``blend`` is 1)
 and ``history`` (1, 1, H, W). :class:`runtime.prelude.PreludeGraph` runs them with the
 signature of ``reproject``.
+
+The frame's input conversion, for the same providers (:meth:`runtime.prelude.PreludeGraph.convert`):
+``convert.onnx`` takes one layer as the frame holds it, ``x`` (H, W, C) float32, with ``fill``
+(1,) the value a non-finite one becomes, ``radiance`` (1,) 1 for a radiance layer (negatives
+-> 0, values above MAX_RADIANCE clamped) and ``scale`` (1,) the exposure it is multiplied by
+after; it gives ``planes`` (1, C, H, W) and ``counts`` (3,) int64, the non-finite, negative and
+clamped values replaced: :func:`runtime.inputs.frame_planes`' arithmetic, tested equal to it.
+``screen.onnx`` turns world normals ``normal`` (1, 3, H, W) into the camera's screen frame with
+``axes`` (3, 3) (:func:`runtime.inputs.camera_axes`) as :func:`runtime.inputs.screen_normal_planes`.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from mcdenoise.runtime.prelude import GUIDES, MAX_SLOTS, SLOT_FILE, inputs, outputs
+from mcdenoise.runtime.prelude import CONVERT_FILE, GUIDES, MAX_SLOTS, SCREEN_FILE, SLOT_FILE, inputs, outputs
 
 OPSET = 17
 
@@ -47,6 +56,54 @@ def _module(k: int):
             return (*outs, history)
 
     return Prelude()
+
+
+def _convert_modules():
+    import torch
+
+    from mcdenoise.runtime.inputs import MAX_RADIANCE
+
+    class Convert(torch.nn.Module):
+        def forward(self, x, fill, radiance, scale):
+            p = x.permute(2, 0, 1).unsqueeze(0)
+            finite = torch.isfinite(p)
+            p = torch.where(finite, p, fill)
+            is_radiance = radiance > 0.5
+            neg = (p < 0) & is_radiance
+            big = (p > MAX_RADIANCE) & is_radiance
+            p = torch.where(neg, torch.zeros_like(p), torch.where(big, torch.full_like(p, MAX_RADIANCE), p))
+            counts = torch.stack([(~finite).sum(), neg.sum(), big.sum()]).to(torch.int64)
+            return p * scale, counts
+
+    class Screen(torch.nn.Module):
+        def forward(self, normal, axes):
+            # the numpy path's order of products and sums (runtime.inputs.screen_normal_planes)
+            return torch.cat([normal[:, 0:1] * axes[i, 0] + normal[:, 1:2] * axes[i, 1] + normal[:, 2:3] * axes[i, 2]
+                              for i in range(3)], dim=1)
+
+    return Convert(), Screen()
+
+
+def export_convert(out_dir: str | Path) -> list[Path]:
+    """Write ``convert.onnx`` and ``screen.onnx`` (module docstring) into ``out_dir``."""
+    import numpy as np
+    import torch
+
+    convert, screen = _convert_modules()
+    rng = np.random.default_rng(0)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    one = torch.ones(1)
+    x = torch.from_numpy(rng.random((6, 5, 3), dtype=np.float32))
+    paths = [out_dir / CONVERT_FILE, out_dir / SCREEN_FILE]
+    torch.onnx.export(convert, (x, one, one, one), str(paths[0]), input_names=["x", "fill", "radiance", "scale"],
+                      output_names=["planes", "counts"], dynamic_axes={"x": {0: "H", 1: "W", 2: "C"},
+                                                                     "planes": {1: "C", 2: "H", 3: "W"}},
+                      opset_version=OPSET, dynamo=False)
+    torch.onnx.export(screen, (x.permute(2, 0, 1)[None], torch.eye(3)), str(paths[1]), input_names=["normal", "axes"],
+                      output_names=["screen"], dynamic_axes={"normal": {2: "H", 3: "W"}, "screen": {2: "H", 3: "W"}},
+                      opset_version=OPSET, dynamo=False)
+    return paths
 
 
 def example(k: int = 2, h: int = 24, w: int = 32, seed: int = 0, channels=None) -> dict:
@@ -95,6 +152,8 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     for k in range(1, MAX_SLOTS + 1):
         print(f"wrote {export(a.out, k)}")
+    for path in export_convert(a.out):
+        print(f"wrote {path}")
     return 0
 
 

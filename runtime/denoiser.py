@@ -110,6 +110,8 @@ class Denoiser:
         self._input_name = {i["layer"]: i["name"] for i in contract.inputs if i.get("layer")}
         self._input_transfer = {i["layer"]: i.get("transfer", "linear") for i in contract.inputs if i.get("layer")}
         self.graph_stages = [s["name"] for s in contract.stages]
+        #: Whether the frame's layers are converted by the prelude's graphs on the device.
+        self._convert = self.io_binding and all(self._input_transfer[l] == "linear" for l in self.frame_layers)
         #: The per-sample input's groups (None for a pixel model).
         self._samples = contract.samples_input
         #: Run-time settings (int64 scalar inputs): name -> value; change with :meth:`set`.
@@ -276,16 +278,19 @@ class Denoiser:
                 if self._state is not None and self.exposure != 1.0 else None
             # The colour sets the exposure and replaces a bad output even when the model reads only samples.
             layers = [*self.frame_layers, *(() if "color" in self.frame_layers else ("color",))]
-            planes = frame_planes(fr, dict.fromkeys([*layers, *extra]), rep,
-                                  buffers=self._plane_buffers[buffer_set], threads=self.driver_threads,
-                                  scale=exposed)
-            feeds_by_layer = model_inputs(planes, layers, fr.meta)
+            names = dict.fromkeys([*layers, *extra])
+            if self._convert and self._state is not None:   # a history's first frame sets its exposure on the host
+                planes, feeds_by_layer = self.prelude.convert(fr, names, layers, rep, self.exposure)
+            else:
+                planes = frame_planes(fr, names, rep, buffers=self._plane_buffers[buffer_set],
+                                      threads=self.driver_threads, scale=exposed)
+                feeds_by_layer = model_inputs(planes, layers, fr.meta)
             guides = self._guide_buffers(fr, planes)
             if self.io_binding:
                 import onnxruntime as ort   # uploaded once; kept as the next frame's previous guides
 
-                guides = {k: ort.OrtValue.ortvalue_from_numpy(np.ascontiguousarray(v), *self._device)
-                          for k, v in guides.items()}
+                guides = {k: v if isinstance(v, ort.OrtValue) else
+                          ort.OrtValue.ortvalue_from_numpy(np.ascontiguousarray(v), *self._device) for k, v in guides.items()}
             if self._state is None:
                 # A new history: fix its exposure now, so the state stays in one unit.
                 self.exposure = float(exposure_scale(feeds_by_layer["color"]).ravel()[0]) if self.autoexposure else 1.0
@@ -295,8 +300,9 @@ class Denoiser:
                     # In place: the planes are the driver's own buffers (frame_planes copies
                     # every layer), and a new 11 MB array costs its page faults (720p).
                     a = np.multiply(a, np.float32(self.exposure), out=a)
-                if l in self._input_name:
-                    feeds[self._input_name[l]] = transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
+                if l in self._input_name:    # (values on the device: linear transfers only, see _convert)
+                    feeds[self._input_name[l]] = a if not isinstance(a, np.ndarray) else \
+                        transfer.get(self._input_transfer[l])(a).astype(np.float32, copy=False)
             if self._samples is not None:
                 feeds[self._samples["name"]] = sample_inputs(fr, [g["group"] for g in self._samples["groups"]], rep,
                                                              None if self.exposure == 1.0 else self.exposure)
@@ -324,7 +330,8 @@ class Denoiser:
             lo, hi = ext
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 bad = ~np.isfinite(out)
-                out = np.where(bad, feeds_by_layer["color"][0], out)   # already exposure-scaled
+                color = feeds_by_layer["color"]                         # already exposure-scaled
+                out = np.where(bad, (color if isinstance(color, np.ndarray) else color.numpy())[0], out)
                 self._say(f"frame {self.report.frames}: model produced {int(bad.sum())} non-finite "
                           "values; replaced by the input and state reset", once_key=None)
                 named = None

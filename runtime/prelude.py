@@ -9,12 +9,15 @@ from __future__ import annotations
 import numpy as np
 
 from mcdenoise.runtime import data_path
+from mcdenoise.runtime.inputs import NONFINITE_FILL, RADIANCE_LAYERS, camera_axes
 from mcdenoise.runtime.temporal import reproject
 
 #: Kept tensors (state and accumulated inputs) the shipped graphs take: one graph per count.
 MAX_SLOTS = 4
 #: The K-slot graph's file name.
 SLOT_FILE = "prelude-{}.onnx"
+#: The frame's input conversion graphs (mcdenoise.export.prelude says what they compute).
+CONVERT_FILE, SCREEN_FILE = "convert.onnx", "screen.onnx"
 #: Guide inputs, after ``prev<i>``, ``current<i>``, ``alpha``, ``blend``, ``motion``.
 GUIDES = ("cur_depth", "cur_position", "cur_normal", "prev_depth", "prev_position", "prev_normal")
 
@@ -68,8 +71,9 @@ class PreludeGraph:
         self.threads, self.device = threads, device
         self.sessions: dict[int, object] = {}
 
-    def session(self, k: int):
-        if not 1 <= k <= MAX_SLOTS:
+    def session(self, k):
+        """The K-slot graph's session (``k`` an int), or the conversion graph named ``k``."""
+        if isinstance(k, int) and not 1 <= k <= MAX_SLOTS:
             raise ValueError(f"the prelude graphs keep 1 to {MAX_SLOTS} tensors; this model keeps {k}")
         if k not in self.sessions:
             import onnxruntime as ort
@@ -79,15 +83,44 @@ class PreludeGraph:
             so.add_session_config_entry("session.force_spinning_stop", "1")   # as the model's (denoiser.py)
             if self.threads:
                 so.intra_op_num_threads = self.threads
-            self.sessions[k] = ort.InferenceSession(str(self.folder / SLOT_FILE.format(k)), so, providers=self.providers)
+            name = SLOT_FILE.format(k) if isinstance(k, int) else k
+            self.sessions[k] = ort.InferenceSession(str(self.folder / name), so, providers=self.providers)
         return self.sessions[k]
+
+    def convert(self, frame, names, layers, report, scale: float = 1.0) -> tuple[dict, dict]:
+        """:func:`runtime.inputs.frame_planes` of ``names`` (radiance layers times ``scale``, the
+        counts into ``report``) and :func:`runtime.inputs.model_inputs` of ``layers``, by the
+        conversion graphs on the device: (planes, inputs), name -> (1, C, H, W) values there
+        (``OrtValue``s; numpy arrays without a device). Only the layers as the frame holds them
+        go in, and only the counts come back."""
+        import onnxruntime as ort
+
+        dev = self.device or ("cpu", 0)
+        planes = {}
+        for name in names:
+            x = ort.OrtValue.ortvalue_from_numpy(np.ascontiguousarray(frame.layer(name), np.float32), *dev)
+            rad = name in RADIANCE_LAYERS
+            flags = {"fill": NONFINITE_FILL.get(name, 0.0), "radiance": float(rad), "scale": scale if rad else 1.0}
+            out = run_bound(self.session(CONVERT_FILE), {"x": x, **{k: np.array([v], np.float32) for k, v in flags.items()}},
+                            self.device, host=("counts",))
+            for counts, n in zip((report.nonfinite, report.negative, report.clamped), out["counts"].tolist()):
+                if n:
+                    counts[name] = counts.get(name, 0) + int(n)
+            planes[name] = out["planes"]
+        inputs = {name: planes[name] for name in layers}
+        axes = camera_axes(frame.meta)
+        if "normal" in inputs and axes is not None:
+            inputs["normal"] = run_bound(self.session(SCREEN_FILE), {"normal": planes["normal"], "axes": axes},
+                                         self.device)["screen"]
+        return planes, inputs
 
     def __call__(self, states, motion, cur: dict, prev: dict, blend=None, threads: int = 1):
         guides = ("depth", "position", "normal")
         if not all(g in cur and g in prev for g in guides):
             # Kept on the device: fetched, non-finite -> 0 as the graphs read them.
             host = lambda a: a if isinstance(a, np.ndarray) else np.nan_to_num(a.numpy(), nan=0.0, posinf=0.0, neginf=0.0)  # noqa: E731
-            return reproject([host(s) for s in states], motion, {g: host(v) for g, v in cur.items()},
+            blend = None if blend is None else [b if b is None else (host(b[0]), *b[1:]) for b in blend]
+            return reproject([host(s) for s in states], host(motion), {g: host(v) for g, v in cur.items()},
                              {g: host(v) for g, v in prev.items()}, threads=threads, blend=blend)
         k = len(states)
         blend = list(blend) if blend is not None else [None] * k

@@ -613,7 +613,7 @@ def test_state_kept_on_the_device_gives_the_host_drivers_images(path):
     onnxruntime values between frames, never numpy arrays, and the images equal the numpy
     driver's over a sequence with history, a frame without world positions (the graphs need
     them: that frame's kept values are fetched for the numpy path), a camera cut and a frame
-    without motion vectors."""
+    without motion vectors; the frame's layers are converted by the conversion graphs."""
     import onnxruntime as ort
 
     frames = [_frame(t, 36, 52) for t in range(5)]
@@ -623,12 +623,46 @@ def test_state_kept_on_the_device_gives_the_host_drivers_images(path):
     host = Denoiser.load(path, log=lambda m: None, prelude="numpy")
     bound = Denoiser.load(path, log=lambda m: None, io_binding=True)
     assert bound.prelude is not None and bound.io_binding
+    assert bound._convert      # and, after a history's first frame, the layers converted on the device
     for i, f in enumerate(frames):
         np.testing.assert_allclose(bound(f), host(f), rtol=1e-5, atol=1e-6)
         # a history's first frame keeps its own inputs, and the numpy path's frame its results
         if bound.protocol.temporal and i not in (0, 2, 3):
             assert bound._state and all(isinstance(v, ort.OrtValue) for v in bound._state.values())
     assert [r[1] for r in bound.report.resets] == [r[1] for r in host.report.resets] == ["camera cut"]
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.37])
+def test_the_conversion_graphs_give_the_numpy_planes_and_counts(scale):
+    """models/driver/convert.onnx and screen.onnx (what a device provider converts a frame's
+    layers with; here CPU values): the planes, the model inputs (screen-space normals) and the
+    sanitising counts of runtime.inputs' numpy path, for layers with NaN, ±Inf, negative and
+    huge values, at an exposure scale (regenerate: python -m mcdenoise.export.prelude --out models/driver)."""
+    import onnxruntime as ort
+
+    from mcdenoise.runtime.inputs import MAX_RADIANCE, SanitizeReport, frame_planes, model_inputs
+    from mcdenoise.runtime.prelude import PreludeGraph
+
+    fr = _frame(1, 29, 17)
+    fr.color[2, 3] = [np.nan, -2.0, 7e5]
+    fr.color[4, 5, 1] = np.inf
+    fr.albedo[6, 7, 0] = np.nan
+    fr.normal[1, 1] = [np.nan, 0.0, -np.inf]
+    fr.depth[3, 3, 0] = -np.inf
+    fr.color[8, 8] = MAX_RADIANCE * scale * (1 - 1e-7)     # on the scaled bound's edge
+    names = ("color", "albedo", "normal", "depth", "position", "motion")
+    layers = ("color", "albedo", "normal", "depth")
+    a, b = SanitizeReport(), SanitizeReport()
+    want = frame_planes(fr, names, a, scale=None if scale == 1 else {"color": np.float32(scale)})
+    want_inputs = model_inputs(want, layers, fr.meta)
+    planes, inputs = PreludeGraph(device=("cpu", 0)).convert(fr, names, layers, b, scale)
+    assert all(isinstance(v, ort.OrtValue) for v in (*planes.values(), *inputs.values()))
+    for name in names:
+        np.testing.assert_array_equal(planes[name].numpy(), want[name])
+    for name in layers:
+        np.testing.assert_allclose(inputs[name].numpy(), want_inputs[name], rtol=1e-6, atol=1e-7)
+    assert (b.nonfinite, b.negative, b.clamped) == (a.nonfinite, a.negative, a.clamped)
+    assert b.nonfinite == {"color": 2, "albedo": 1, "normal": 2, "depth": 1} and b.clamped == {"color": 1}
 
 
 def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_file):
