@@ -1,7 +1,8 @@
 """Whole frames through the driver on the CPU provider, three ways, interleaved frame by frame so
 machine noise hits all three alike: numpy prelude with the state on the host (the CPU default),
 the prelude graphs with the state on the host, and the prelude graphs with the state kept as
-onnxruntime values with IO binding (a device provider's default, here with CPU OrtValues).
+onnxruntime values with IO binding and the frame's layers converted by graphs (a device
+provider's default, here with CPU OrtValues).
 Prints a markdown table of medians (ms) after the warm-up frames.
 
     python docs/results/iobinding/driver_paths.py [--size 1280x720] [--frames 10] [--threads 2] MODEL...
@@ -25,9 +26,9 @@ p.add_argument("--threads", type=int, default=2)
 p.add_argument("--spp", type=int, default=0, help="per-sample features per frame (per-sample models)")
 a = p.parse_args()
 w, h = (int(v) for v in a.size.split("x"))
-print(f"| model | path | reproject | graph | whole frame |  ({a.size}, {a.threads} threads, medians of "
+print(f"| model | path | preprocess | reproject | graph | whole frame |  ({a.size}, {a.threads} threads, medians of "
       f"{a.frames - a.warmup} frames)")
-print("|---|---|---:|---:|---:|")
+print("|---|---|---:|---:|---:|---:|")
 for model in a.models:
     dens = [Denoiser.load(model, threads=a.threads, prelude=pre, io_binding=io, log=lambda m: None)
             for _, pre, io in PATHS]
@@ -37,5 +38,5 @@ for model in a.models:
             den(Frame(**fr))
     for (name, _, _), den in zip(PATHS, dens):
         rows = den.timings[a.warmup:]
-        med = {k: statistics.median(r[k] for r in rows) for k in ("reproject", "graph (wall)", "total")}
-        print(f"| {model} | {name} | {med['reproject']:.1f} | {med['graph (wall)']:.1f} | {med['total']:.1f} |")
+        med = {k: statistics.median(r[k] for r in rows) for k in ("preprocess", "reproject", "graph (wall)", "total")}
+        print(f"| {model} | {name} | {med['preprocess']:.1f} | {med['reproject']:.1f} | {med['graph (wall)']:.1f} | {med['total']:.1f} |")
