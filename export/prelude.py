@@ -26,13 +26,15 @@ after; it gives ``planes`` (1, C, H, W) and ``counts`` (3,) int64, the non-finit
 clamped values replaced: :func:`runtime.inputs.frame_planes`' arithmetic, tested equal to it.
 ``screen.onnx`` turns world normals ``normal`` (1, 3, H, W) into the camera's screen frame with
 ``axes`` (3, 3) (:func:`runtime.inputs.camera_axes`) as :func:`runtime.inputs.screen_normal_planes`.
+``post.onnx`` gives the model's ``output`` (1, 3, H, W) back as ``image`` (H, W, 3) times
+``scale`` (1,), with ``checks`` (2,) its minimum and sum (:meth:`runtime.prelude.PreludeGraph.post`).
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from mcdenoise.runtime.prelude import CONVERT_FILE, GUIDES, MAX_SLOTS, SCREEN_FILE, SLOT_FILE, inputs, outputs
+from mcdenoise.runtime.prelude import CONVERT_FILE, GUIDES, MAX_SLOTS, POST_FILE, SCREEN_FILE, SLOT_FILE, inputs, outputs
 
 OPSET = 17
 
@@ -91,7 +93,12 @@ def _convert_modules():
             return torch.cat([normal[:, 0:1] * axes[i, 0] + normal[:, 1:2] * axes[i, 1] + normal[:, 2:3] * axes[i, 2]
                               for i in range(3)], dim=1)
 
-    return Convert(), Screen()
+    class Post(torch.nn.Module):
+        def forward(self, output, scale):
+            o = output[0]
+            return o.permute(1, 2, 0) * scale, torch.stack([o.min(), o.sum()])
+
+    return Convert(), Screen(), Post()
 
 
 def export_convert(out_dir: str | Path) -> list[Path]:
@@ -99,19 +106,22 @@ def export_convert(out_dir: str | Path) -> list[Path]:
     import numpy as np
     import torch
 
-    convert, screen = _convert_modules()
+    convert, screen, post = _convert_modules()
     rng = np.random.default_rng(0)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     one = torch.ones(1)
     x = torch.from_numpy(rng.random((6, 5, 3), dtype=np.float32))
-    paths = [out_dir / CONVERT_FILE, out_dir / SCREEN_FILE]
+    paths = [out_dir / CONVERT_FILE, out_dir / SCREEN_FILE, out_dir / POST_FILE]
     torch.onnx.export(convert, (x, one, one, one), str(paths[0]), input_names=["x", "fill", "radiance", "scale"],
                       output_names=["planes", "counts"], dynamic_axes={"x": {0: "H", 1: "W", 2: "C"},
                                                                      "planes": {1: "C", 2: "H", 3: "W"}},
                       opset_version=OPSET, dynamo=False)
     torch.onnx.export(screen, (x.permute(2, 0, 1)[None], torch.eye(3)), str(paths[1]), input_names=["normal", "axes"],
                       output_names=["screen"], dynamic_axes={"normal": {2: "H", 3: "W"}, "screen": {2: "H", 3: "W"}},
+                      opset_version=OPSET, dynamo=False)
+    torch.onnx.export(post, (x.permute(2, 0, 1)[None], one), str(paths[2]), input_names=["output", "scale"],
+                      output_names=["image", "checks"], dynamic_axes={"output": {2: "H", 3: "W"}, "image": {0: "H", 1: "W"}},
                       opset_version=OPSET, dynamo=False)
     return paths
 

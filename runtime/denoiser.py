@@ -316,18 +316,22 @@ class Denoiser:
             accumulated = self._state_inputs(planes.get("motion"), guides, h, w, feeds, fr.color_spp)
         with tm.stage(timing.GRAPH):
             if self.io_binding:
-                named = run_bound(self.session, feeds, self._device, host=("output",))
+                named = run_bound(self.session, feeds, self._device, host=() if self._convert else ("output",))
             else:
                 named = dict(zip([o.name for o in self.session.get_outputs()], self.session.run(None, feeds)))
         with tm.stage(timing.POSTPROCESS):
-            out = named["output"][0]                                   # (3, H, W)
             inv = np.float32(1.0 / self.exposure)
             scale = None if inv == 1 else inv
             # Back to the caller's units (auto-exposure) in the same pass as the layout change
             # and the extrema (NaN/inf propagate); redone in the rare case they say it must be.
             ext: list = []
-            image = from_planes(out, scale, threads=self.driver_threads, extrema=ext)
+            if self._convert:     # on the device: only the image and [min, sum] come back
+                image, ext = self.prelude.post(named["output"], inv)
+            else:
+                image = from_planes(named["output"][0], scale, threads=self.driver_threads, extrema=ext)
             lo, hi = ext
+            if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0:
+                out = (o if isinstance(o := named["output"], np.ndarray) else o.numpy())[0]   # (3, H, W)
             if not (np.isfinite(lo) and np.isfinite(hi)):
                 bad = ~np.isfinite(out)
                 color = feeds_by_layer["color"]                         # already exposure-scaled

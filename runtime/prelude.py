@@ -17,7 +17,7 @@ MAX_SLOTS = 4
 #: The K-slot graph's file name.
 SLOT_FILE = "prelude-{}.onnx"
 #: The frame's input conversion graphs (mcdenoise.export.prelude says what they compute).
-CONVERT_FILE, SCREEN_FILE = "convert.onnx", "screen.onnx"
+CONVERT_FILE, SCREEN_FILE, POST_FILE = "convert.onnx", "screen.onnx", "post.onnx"
 #: Guide inputs, after ``prev<i>``, ``current<i>``, ``alpha``, ``blend``, ``motion``.
 GUIDES = ("cur_depth", "cur_position", "cur_normal", "prev_depth", "prev_position", "prev_normal")
 
@@ -113,6 +113,13 @@ class PreludeGraph:
             inputs["normal"] = run_bound(self.session(SCREEN_FILE), {"normal": planes["normal"], "axes": axes},
                                          self.device)["screen"]
         return planes, inputs
+
+    def post(self, output, scale) -> tuple[np.ndarray, list]:
+        """The model's ``output`` (1, 3, H, W) on the device as the caller's (H, W, 3) image times
+        ``scale`` (float32), by the post graph, with [its minimum, its sum] (the sum is
+        non-finite when a value is; :func:`runtime.inputs.from_planes`' extrema say the same)."""
+        out = run_bound(self.session(POST_FILE), {"output": output, "scale": np.array([scale], np.float32)}, None)
+        return out["image"], [float(v) for v in out["checks"]]
 
     def __call__(self, states, motion, cur: dict, prev: dict, blend=None, threads: int = 1):
         guides = ("depth", "position", "normal")

@@ -537,27 +537,46 @@ def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkey
         np.testing.assert_array_equal(got["depth"][0, 0], prev_frame.depth[..., 0])
 
 
-def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file):
+@pytest.mark.parametrize("io_binding", [False, True])
+def test_nonfinite_model_output_falls_back_to_the_input_and_resets(model_file, io_binding, monkeypatch):
     """Should the graph ever emit NaN/Inf, those pixels get the (sanitised) input colour in the
-    caller's units, auto-exposure notwithstanding, the state is reset, and it is said."""
+    caller's units, auto-exposure notwithstanding, the state is reset, and it is said; also
+    with the output kept on the device (io_binding: the post graph's checks say so)."""
+    import onnxruntime as ort
+
+    import mcdenoise.runtime.denoiser as driver
+
     path, _, _ = model_file
     msgs = []
-    den = Denoiser.load(path, log=msgs.append)
+    den = Denoiser.load(path, log=msgs.append, io_binding=io_binding)
     frames = [_frame(t) for t in range(3)]
     for f in frames:
         f.color *= 37.0                        # far from the auto-exposure key: a factor != 1
     den(frames[0])
     assert den.exposure != 1.0
-    real = den.session.run
+    real, real_bound = den.session.run, driver.run_bound
+
+    def spoil(out):
+        out[0, :, 2, 3] = np.nan
+        out[0, 1, 4, 5] = np.inf
+        return out
 
     def broken(names, feeds):
         outs = real(names, feeds)
-        outs[0][0, :, 2, 3] = np.nan
-        outs[0][0, 1, 4, 5] = np.inf
+        spoil(outs[0])
         return outs
 
+    def broken_bound(session, feeds, device, host=()):
+        named = real_bound(session, feeds, device, host)
+        if session is den.session:
+            o = named["output"]
+            named["output"] = spoil(o) if isinstance(o, np.ndarray) else ort.OrtValue.ortvalue_from_numpy(spoil(o.numpy()))
+        return named
+
     den.session.run = broken
+    monkeypatch.setattr(driver, "run_bound", broken_bound)
     out = den(frames[1])
+    monkeypatch.setattr(driver, "run_bound", real_bound)
     np.testing.assert_allclose(out[2, 3], frames[1].color[2, 3], rtol=1e-6)
     np.testing.assert_allclose(out[4, 5, 1], frames[1].color[4, 5, 1], rtol=1e-6)   # that value only
     assert np.isfinite(out).all() and den._state is None
@@ -663,6 +682,22 @@ def test_the_conversion_graphs_give_the_numpy_planes_and_counts(scale):
         np.testing.assert_allclose(inputs[name].numpy(), want_inputs[name], rtol=1e-6, atol=1e-7)
     assert (b.nonfinite, b.negative, b.clamped) == (a.nonfinite, a.negative, a.clamped)
     assert b.nonfinite == {"color": 2, "albedo": 1, "normal": 2, "depth": 1} and b.clamped == {"color": 1}
+    # and back: post.onnx gives from_planes' image, with a minimum and a sum that say what its
+    # extrema say (a NaN or Inf makes the sum non-finite, whatever the minimum does with it)
+    from mcdenoise.runtime.inputs import from_planes
+
+    out = np.random.default_rng(3).normal(1.0, 0.5, (1, 3, 17, 29)).astype(np.float32)
+    graph = PreludeGraph(device=("cpu", 0))
+    for bad in (None, np.nan, np.inf):
+        if bad is not None:
+            out[0, 1, 2, 3] = bad
+        ext: list = []
+        want = from_planes(out[0], np.float32(scale), extrema=ext)
+        image, (lo, total) = graph.post(ort.OrtValue.ortvalue_from_numpy(out), np.float32(scale))
+        np.testing.assert_array_equal(image, want)
+        assert np.isfinite(total) == (bad is None) == bool(np.isfinite(ext).all())
+        if bad is None:
+            assert lo == ext[0] < 0
 
 
 def test_accumulate_alpha_overrides_the_files_and_1_means_no_accumulation(model_file):
