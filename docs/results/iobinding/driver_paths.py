@@ -26,9 +26,9 @@ p.add_argument("--threads", type=int, default=2)
 p.add_argument("--spp", type=int, default=0, help="per-sample features per frame (per-sample models)")
 a = p.parse_args()
 w, h = (int(v) for v in a.size.split("x"))
-print(f"| model | path | preprocess | reproject | graph | whole frame |  ({a.size}, {a.threads} threads, medians of "
+print(f"| model | path | preprocess | reproject | graph | postprocess | whole frame |  ({a.size}, {a.threads} threads, medians of "
       f"{a.frames - a.warmup} frames)")
-print("|---|---|---:|---:|---:|---:|")
+print("|---|---|---:|---:|---:|---:|---:|")
 for model in a.models:
     dens = [Denoiser.load(model, threads=a.threads, prelude=pre, io_binding=io, log=lambda m: None)
             for _, pre, io in PATHS]
@@ -38,5 +38,5 @@ for model in a.models:
             den(Frame(**fr))
     for (name, _, _), den in zip(PATHS, dens):
         rows = den.timings[a.warmup:]
-        med = {k: statistics.median(r[k] for r in rows) for k in ("preprocess", "reproject", "graph (wall)", "total")}
-        print(f"| {model} | {name} | {med['preprocess']:.1f} | {med['reproject']:.1f} | {med['graph (wall)']:.1f} | {med['total']:.1f} |")
+        med = {k: statistics.median(r[k] for r in rows) for k in ("preprocess", "reproject", "graph (wall)", "postprocess", "total")}
+        print(f"| {model} | {name} | {med['preprocess']:.1f} | {med['reproject']:.1f} | {med['graph (wall)']:.1f} | {med['postprocess']:.1f} | {med['total']:.1f} |")
