@@ -5,7 +5,9 @@
 #   python -m mcdenoise.training.carry --out .gpu/wheels --variants cuda_ad_rgb   # ~55 MB (Mitsuba stripped)
 # then, with the device tool (carry [".gpu"]; the tracked tree is ~8 MB more):
 #   bash docs/results/device/gpu_train.sh SPEC[,SPEC...] SCENES MINUTES
-# (several specs train one after another on the same rendered shard, MINUTES each; with one
+# (several specs train one after another on the same rendered shard, MINUTES each; SEED=N picks
+# the shard's seed, default 10, a new one each session of a chain; FIREFLIES=D trains with the
+# outlier augmentation; with one
 # spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
 # docs/results/scale, so a GPU session continues the CPU sittings' chain)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
@@ -30,17 +32,18 @@ export PYTHONPATH="$site"
 mcd() { python -m mcdenoise.runtime.cli "$@"; }
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader | tee "$OUT/gpu.txt" || true
 start=$(date +%s)
-mcd render --out /tmp/data/shard-10 --scenes "$scenes" --frames 8 --size "$size" --spp 8 --ref-spp "$ref_spp" \
-  --seed 10 --enclosed 0.5 --variant "$variant" --workers 2 2> "$OUT/render.log"
-echo "render: $(( $(date +%s) - start )) s for $scenes scenes" | tee "$OUT/times.txt"
-cp /tmp/data/shard-10/manifest.json "$OUT/manifest.json"
+seed=${SEED:-10}   # a chain never sees one shard seed twice: give each GPU session its own (CPU sittings use 20-27)
+mcd render --out "/tmp/data/shard-$seed" --scenes "$scenes" --frames 8 --size "$size" --spp 8 --ref-spp "$ref_spp" \
+  --seed "$seed" --enclosed 0.5 --variant "$variant" --workers 2 2> "$OUT/render.log"
+echo "render: $(( $(date +%s) - start )) s for $scenes scenes (seed $seed)" | tee "$OUT/times.txt"
+cp "/tmp/data/shard-$seed/manifest.json" "$OUT/manifest.json"
 for one in ${spec//,/ }; do
   # per-frame models (NDLE) train on single frames; the temporal ones on 8-frame windows
   window=8; if grep -q '^window = 1' "models_spec/$one.toml"; then window=1; fi
   start=$(date +%s)
   mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
-    ${INIT:+--init "$INIT"} \
+    ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
   tail -n 3 "$OUT/train-$one.log"
