@@ -17,8 +17,8 @@ from pathlib import Path
 from mcdenoise.runtime import data_path, timing
 from mcdenoise.runtime.args import add_threads
 from mcdenoise.runtime.denoiser import Denoiser
-from mcdenoise.runtime.frames import FrameError, frame_paths, read_frame, read_plain, write_rgb
-from mcdenoise.runtime.writers import write_png
+from mcdenoise.runtime.frames import FrameError, frame_paths, read_frame, read_plain
+from mcdenoise.runtime.writers import write_png, write_rgb
 from mcdenoise.training.metrics import pixels, psnr
 from mcdenoise.runtime.transfer import gamma
 

@@ -1,9 +1,10 @@
-"""The frame format: channel table, in-memory :class:`Frame`, and the OpenEXR reader/writer.
+"""The frame format: channel table, in-memory :class:`Frame`, and the OpenEXR reader.
 
 One frame of a sequence is one OpenEXR file.  This module is the single definition of its
-layout; the renderer writes through :func:`write_frame`, and training, export tests and the
-runtime read through :func:`read_frame` (or :func:`read_plain` for the colour/albedo/normal
-EXR triple other denoisers use).  numpy + OpenEXR only: no torch here.
+layout; the renderer writes through :func:`runtime.writers.write_frame` (apart from the core,
+which only reads), and training, export tests and the runtime read through :func:`read_frame`
+(or :func:`read_plain` for the colour/albedo/normal EXR triple other denoisers use).  numpy +
+OpenEXR only: no torch here.
 
 Conventions (all layers):
   * images are ``float32`` arrays of shape ``(H, W, C)``; samples ``(S, H, W, F)``;
@@ -387,23 +388,6 @@ def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None
                              f"{color} is {c.shape[1]}x{c.shape[0]}")
         setattr(fr, name, arr)
     return fr
-
-
-def write_rgb(path: str | os.PathLike, image: np.ndarray, meta: dict | None = None) -> None:
-    """Write an (H, W, 3) image as a plain R,G,B float32 EXR (readable by any EXR tool and by
-    :func:`read_rgb`)."""
-    import OpenEXR
-
-    image = np.asarray(image, dtype=np.float32)
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise FrameError(f"{path}: expected an (H, W, 3) image, got {image.shape}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    if meta:
-        header[META_KEY] = json.dumps(meta, sort_keys=True)
-    chans = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
-    tmp = f"{os.fspath(path)}.tmp"
-    OpenEXR.File(header, chans).write(tmp)
-    os.replace(tmp, path)
 
 
 def pixel_means(samples: np.ndarray) -> dict[str, np.ndarray]:

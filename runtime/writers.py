@@ -1,5 +1,5 @@
-"""Writing frame files (:func:`write_frame`, the layout runtime/frames.py defines and reads) and
-8-bit PNGs: what a renderer, the denoise command and the reports do, apart from the deployable
+"""Writing frame files (:func:`write_frame`, the layout runtime/frames.py defines and reads), plain
+RGB EXRs (:func:`write_rgb`, what :func:`runtime.frames.read_rgb` reads) and 8-bit PNGs: what a renderer, the denoise command and the reports do, apart from the deployable
 core, which only reads frames."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from mcdenoise.runtime.frames import FORMAT_VERSION, META_KEY, PIXEL_LAYERS, SAMPLE_FEATURES, Frame
+from mcdenoise.runtime.frames import FORMAT_VERSION, META_KEY, PIXEL_LAYERS, SAMPLE_FEATURES, Frame, FrameError
 
 
 def write_frame(path: str | os.PathLike, frame: Frame) -> None:
@@ -36,6 +36,23 @@ def write_frame(path: str | os.PathLike, frame: Frame) -> None:
     tmp = f"{os.fspath(path)}.tmp"
     OpenEXR.File(header, channels).write(tmp)
     os.replace(tmp, path)  # a crash mid-write never leaves a truncated frame behind
+
+
+def write_rgb(path: str | os.PathLike, image: np.ndarray, meta: dict | None = None) -> None:
+    """Write an (H, W, 3) image as a plain R,G,B float32 EXR (readable by any EXR tool and by
+    :func:`runtime.frames.read_rgb`)."""
+    import OpenEXR
+
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise FrameError(f"{path}: expected an (H, W, 3) image, got {image.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if meta:
+        header[META_KEY] = json.dumps(meta, sort_keys=True)
+    chans = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
+    tmp = f"{os.fspath(path)}.tmp"
+    OpenEXR.File(header, chans).write(tmp)
+    os.replace(tmp, path)
 
 
 def write_png(path: str | os.PathLike, image01: np.ndarray) -> None:

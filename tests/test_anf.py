@@ -182,7 +182,7 @@ def test_a_per_sample_model_on_plain_input_says_what_it_needs(anf):
 
 def test_the_denoise_command_on_plain_images_says_it_needs_samples_in_one_line(anf, tmp_path, capsys):
     from mcdenoise.runtime.cli import main
-    from mcdenoise.runtime.frames import write_rgb
+    from mcdenoise.runtime.writers import write_rgb
 
     path, _, _ = anf
     write_rgb(tmp_path / "color.exr", synthetic_frame(16, 12, 0)["color"])

@@ -132,8 +132,8 @@ def test_half_channels_are_accepted_as_float32(tmp_path):
 def test_plain_oidn_style_inputs(tmp_path):
     rng = np.random.default_rng(1)
     col, alb = rng.random((5, 6, 3), dtype=np.float32), rng.random((5, 6, 3), dtype=np.float32)
-    F.write_rgb(tmp_path / "color.exr", col)
-    F.write_rgb(tmp_path / "albedo.exr", alb)
+    W.write_rgb(tmp_path / "color.exr", col)
+    W.write_rgb(tmp_path / "albedo.exr", alb)
     # PFM is stored bottom-to-top, little-endian when the scale is negative.
     with open(tmp_path / "normal.pfm", "wb") as fh:
         fh.write(b"PF\n6 5\n-1.0\n" + col[::-1].astype("<f4").tobytes())
@@ -141,7 +141,7 @@ def test_plain_oidn_style_inputs(tmp_path):
     np.testing.assert_array_equal(fr.color, col)
     np.testing.assert_array_equal(fr.albedo, alb)
     np.testing.assert_array_equal(fr.normal, col)
-    F.write_rgb(tmp_path / "small.exr", col[:4])
+    W.write_rgb(tmp_path / "small.exr", col[:4])
     with pytest.raises(F.FrameError, match="albedo image is 6x4, colour .* is 6x5"):
         F.read_plain(tmp_path / "color.exr", tmp_path / "small.exr")
 
@@ -154,12 +154,12 @@ def test_plain_depth_image(tmp_path):
     rng = np.random.default_rng(2)
     col = rng.random((5, 6, 3), dtype=np.float32)
     d = (1 + rng.random((5, 6))).astype(np.float32)
-    F.write_rgb(tmp_path / "color.exr", col)
+    W.write_rgb(tmp_path / "color.exr", col)
     OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
                  {"Z": d}).write(str(tmp_path / "z.exr"))
     with open(tmp_path / "d.pfm", "wb") as fh:
         fh.write(b"Pf\n6 5\n-1.0\n" + d[::-1].astype("<f4").tobytes())
-    F.write_rgb(tmp_path / "grey.exr", np.repeat(d[..., None], 3, axis=-1))
+    W.write_rgb(tmp_path / "grey.exr", np.repeat(d[..., None], 3, axis=-1))
     for name in ("z.exr", "d.pfm", "grey.exr"):
         fr = F.read_plain(tmp_path / "color.exr", depth=tmp_path / name)
         assert fr.depth.shape == (5, 6, 1)
@@ -171,7 +171,7 @@ def test_plain_depth_image(tmp_path):
         F.read_plain(tmp_path / "color.exr", depth=tmp_path / "c.pfm")
     with pytest.raises(F.FrameError, match="found different R, G, B"):
         F.read_plain(tmp_path / "color.exr", depth=tmp_path / "color.exr")
-    F.write_rgb(tmp_path / "small.exr", np.repeat(d[:4, :, None], 3, axis=-1))
+    W.write_rgb(tmp_path / "small.exr", np.repeat(d[:4, :, None], 3, axis=-1))
     with pytest.raises(F.FrameError, match="depth image is 6x4, colour .* is 6x5"):
         F.read_plain(tmp_path / "color.exr", depth=tmp_path / "small.exr")
 

@@ -274,7 +274,7 @@ def test_denoise_command_on_plain_images(model_file, tmp_path, capsys):
     depth images a model needs gives the driver's image of the same frame; without them the
     command names the flags to give, in one line."""
     from mcdenoise.runtime.cli import main
-    from mcdenoise.runtime.frames import write_rgb
+    from mcdenoise.runtime.writers import write_rgb
 
     path, _, _ = model_file
     f = _frame(0)
@@ -535,6 +535,39 @@ def test_reused_input_buffers_never_overwrite_the_kept_guides(model_file, monkey
     for prev_frame, got in zip(frames[:3], seen):
         np.testing.assert_array_equal(got["position"][0], prev_frame.position.transpose(2, 0, 1))
         np.testing.assert_array_equal(got["depth"][0, 0], prev_frame.depth[..., 0])
+
+
+@pytest.mark.parametrize("io_binding", [False, True])
+def test_an_unflagged_cut_is_found_by_the_history_test_and_starts_a_new_history(model_file, io_binding):
+    """A frame of other geometry without meta["cut"] (the stress test's unflagged cut): the
+    history test keeps under CUT_HISTORY of its pixels, so the driver resets and denoises it as
+    a new history's first frame, its exposure its own: the image of a fresh driver, to the bit;
+    said once, and its sanitising counted once."""
+    from mcdenoise.runtime.denoiser import CUT_HISTORY
+
+    path, spec, _ = model_file
+    assert spec.state or spec.accumulate              # both of model_file's specs keep a history
+    msgs = []
+    den = Denoiser.load(path, log=msgs.append, io_binding=io_binding)
+    for t in range(3):
+        den(_frame(t))
+    def elsewhere(t):
+        f = _frame(t)
+        f.position = f.position + np.float32(50.0)          # other geometry, same screen
+        f.depth = f.depth * np.float32(3.0)
+        f.color = f.color * np.float32(20.0)                 # and another exposure
+        f.meta.pop("cut", None)
+        return f
+
+    other = elsewhere(5)
+    other.color[1, 2] = np.nan
+    fresh = Denoiser.load(path, log=lambda m: None, io_binding=io_binding)(other)
+    np.testing.assert_array_equal(den(other), fresh)
+    assert len(den.report.resets) == 1 and "of the pixels (an unflagged camera cut)" in den.report.resets[0][1]
+    assert sum("unflagged camera cut" in m for m in msgs) == 1 and den.report.sanitized_frames == 1
+    assert CUT_HISTORY < 0.05
+    den(elsewhere(6))                                       # and the new history goes on
+    assert len(den.report.resets) == 1 and den._state is not None
 
 
 @pytest.mark.parametrize("io_binding", [False, True])

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcdenoise.runtime.frames import write_rgb
+from mcdenoise.runtime.writers import write_rgb
 from mcdenoise.training.render.camera import FlyThrough, Intrinsics, look_at, rotation, translation
 
 #: Path tracing depth: five bounces after the primary hit, as NDLE §4 renders its training set.
