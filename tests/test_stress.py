@@ -166,3 +166,20 @@ def test_render_options_keep_the_scene():
     assert rest(a) == rest(b) and a.path == b.path
     with pytest.raises(ValueError, match="floor"):
         procedural.generate(7, 64, 64, 3, floor="lava")
+
+
+def test_a_methods_copy_of_a_frame_keeps_every_layer(frame):
+    """The copy each method gets holds every pixel layer of the frame format (a model reading
+    the emissive layer crashed on every case while the copy listed the layers by hand)."""
+    from mcdenoise.runtime.frames import PIXEL_LAYERS
+
+    f = frame
+    got = stress._fresh(f)
+    for layer in PIXEL_LAYERS:
+        src = getattr(f, layer.name)
+        assert (getattr(got, layer.name) is None) == (src is None), layer.name
+        if src is not None:
+            np.testing.assert_array_equal(getattr(got, layer.name), src)
+            assert getattr(got, layer.name) is not src
+    assert f.emissive is not None
+

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from mcdenoise.runtime.frames import SAMPLE_GROUPS, Frame, FrameError
+from mcdenoise.runtime.frames import PIXEL_LAYERS, SAMPLE_GROUPS, Frame, FrameError
 from mcdenoise.training.dataset import add_fireflies
 from mcdenoise.training.report import (
     compose,
@@ -282,7 +282,7 @@ class Result:
 def _fresh(fr: Frame) -> Frame:
     """A copy a method may modify without touching the next method's input."""
     arrays = {k: (None if getattr(fr, k) is None else getattr(fr, k).copy())
-              for k in ("color", "albedo", "normal", "depth", "position", "motion", "valid", "reference")}
+              for k in (layer.name for layer in PIXEL_LAYERS)}     # every layer: a model may read any
     return Frame(**arrays, samples=None if fr.samples is None else fr.samples.copy(),
                  meta=json.loads(json.dumps(fr.meta)), path=fr.path)
 
