@@ -8,6 +8,9 @@ data/curves-test: the number behind "train with nothing else running" in README.
 2026-12-02, 2-vCPU AMD EPYC, 2 threads, after the first two steps: alone (renders paused with
 pkill -STOP) forward + backward 0.6 s and, in a second run, 0.7-1.2 s; beside two nice-19
 `mcdenoise render` processes 3-24 s forward and 3-26 s backward.
+Later the same day, ``anf-s`` alone (kernel size 13): 3.1-12.7 s forward (1-8 spp) and 6-15 s
+backward, 17-20 s a step: ANF's "16 s a step" of earlier sessions was its own cost, not
+contention (the backward of 4 x 169 taps).
 """
 import sys
 import time
