@@ -176,6 +176,23 @@ def _shapes(model) -> dict[str, tuple]:
     return shapes
 
 
+def _zero_feeds(model, settings: dict | None = None) -> dict:
+    """Zeros for every graph input of the bound ``model`` (not its initializers), of its shape and
+    type; the int64 scalar ``settings`` (input name -> value) instead where given."""
+    import onnx
+
+    feeds = {}
+    init = {i.name for i in model.graph.initializer}
+    for inp in model.graph.input:
+        if inp.name in init:
+            continue
+        t = inp.type.tensor_type
+        dt = onnx.helper.tensor_dtype_to_np_dtype(t.elem_type)
+        feeds[inp.name] = (np.array(settings[inp.name], dtype=dt) if settings and inp.name in settings
+                           else np.zeros([d.dim_value for d in t.shape.dim], dtype=dt))
+    return feeds
+
+
 def _run_shapes(model, inferred, names: list[str]) -> dict[str, tuple]:
     """Shapes static inference cannot give (sizes computed from data, e.g. NBG's grid sizes
     from H and W): run the bound graph once on zero inputs with those tensors as outputs."""
@@ -200,15 +217,7 @@ def _run_shapes(model, inferred, names: list[str]) -> dict[str, tuple]:
     # Unoptimised, so every requested tensor still exists (no fusion removes it).
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     sess = ort.InferenceSession(m.SerializeToString(), so, providers=["CPUExecutionProvider"])
-    feeds = {}
-    init = {i.name for i in m.graph.initializer}
-    for inp in m.graph.input:
-        if inp.name in init:
-            continue
-        t = inp.type.tensor_type
-        dt = onnx.helper.tensor_dtype_to_np_dtype(t.elem_type)
-        feeds[inp.name] = np.zeros([d.dim_value for d in t.shape.dim], dtype=dt)
-    outs = sess.run(names, feeds)
+    outs = sess.run(names, _zero_feeds(m))
     return {n: tuple(int(d) for d in np.shape(o)) for n, o in zip(names, outs)}
 
 
@@ -371,18 +380,9 @@ def _executed(model, settings: dict) -> list[tuple[str, list, list]]:
     graph's own), on zero inputs with the int64 scalar ``settings`` by input name."""
     import tempfile
 
-    import onnx
     import onnxruntime as ort
 
-    feeds = {}
-    init = {i.name for i in model.graph.initializer}
-    for inp in model.graph.input:
-        if inp.name in init:
-            continue
-        t = inp.type.tensor_type
-        dt = onnx.helper.tensor_dtype_to_np_dtype(t.elem_type)
-        feeds[inp.name] = (np.array(settings[inp.name], dtype=dt) if inp.name in settings
-                           else np.zeros([d.dim_value for d in t.shape.dim], dtype=dt))
+    feeds = _zero_feeds(model, settings)
     with tempfile.TemporaryDirectory() as tmp:
         so = ort.SessionOptions()
         so.log_severity_level = 3
