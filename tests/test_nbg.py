@@ -209,7 +209,9 @@ def test_interface_shapes_and_constant_irradiance(name):
         names = model.input_names
         if model.params.outlier_removal:  # it would (rightly) clip the random albedo's highs
             t[names.index("albedo")] = torch.full_like(t[names.index("albedo")], 0.6)
-        albedo = t[names.index("albedo")]
+        # what the spec (de)modulates by: lights by 1 (an emissive layer), the albedo clamped
+        emissive = t[names.index("emissive")] if "emissive" in names else None
+        albedo = modulation_albedo(t[names.index("albedo")], emissive, model.params.albedo_clamp)
         t[names.index("color")] = 0.7 * (albedo + ALBEDO_EPS)
         if temporal:
             t[names.index("history")] = torch.zeros_like(t[names.index("history")])

@@ -369,17 +369,21 @@ class NBGTemporalStage(TemporalStage):
     """Stage "temporal": [outlier removal], demodulation, then :func:`temporal_accumulate`
     of the irradiance (the shared :class:`~training.models.common.TemporalStage`)."""
 
-    def __init__(self, alpha: float, outlier_removal: bool):
+    def __init__(self, alpha: float, outlier_removal: bool, albedo_clamp: bool = False):
         super().__init__(alpha)
         self.outlier_removal = outlier_removal
+        self.albedo_clamp = albedo_clamp
 
-    def forward(self, color, albedo, prev, history, weight=None):
+    def forward(self, color, albedo, emissive, prev, history, weight=None):
         """``weight``: (N, 1, 1, 1) current-frame weights fed by the driver (a [[state]] with an
-        alpha), else the fixed α."""
+        alpha), else the fixed α. Returns (accumulated irradiance, the albedo it is
+        (de)modulated by: :func:`modulation_albedo`, computed here so its ops belong to a stage)."""
+        m = modulation_albedo(albedo, emissive, self.albedo_clamp)
         if self.outlier_removal:
             color = remove_outliers(color)
-        irr = demodulate(color, albedo)
-        return super().forward(irr, prev, history) if weight is None else temporal_accumulate(irr, prev, history, weight)
+        irr = demodulate(color, m)
+        acc = super().forward(irr, prev, history) if weight is None else temporal_accumulate(irr, prev, history, weight)
+        return acc, m
 
 
 class GuideStage(nn.Module):
@@ -387,9 +391,10 @@ class GuideStage(nn.Module):
 
     ``forward(x, albedo, normal, depth, emissive=None, modulation=None)``: x is the accumulated
     irradiance when a temporal stage ran before (``demodulated=True``), else the colour, cleaned
-    and demodulated here; ``modulation`` (N, 3, H, W) is the albedo it is (de)modulated by
-    (default ``albedo``), ``emissive`` (N, 1, H, W) the GuideNet's 11th channel.
-    Returns (irradiance (N, 3, H, W), [guide_s (N, 1, H, W)], [w_s (N, 1, H, W)])."""
+    and demodulated here; ``modulation`` (N, 3, H, W) is the albedo it is (de)modulated by, from
+    the temporal stage (default: :func:`modulation_albedo` of ``albedo``, computed here),
+    ``emissive`` (N, 1, H, W) the GuideNet's 11th channel.
+    Returns (irradiance (N, 3, H, W), [guide_s (N, 1, H, W)], [w_s (N, 1, H, W)], modulation)."""
 
     def __init__(self, params: NBGParams, transfer: str, demodulated: bool, emissive: bool = False):
         super().__init__()
@@ -397,11 +402,12 @@ class GuideStage(nn.Module):
         self.transfer = transfer
         self.demodulated = demodulated
         self.outlier_removal = params.outlier_removal
+        self.albedo_clamp = params.albedo_clamp
         cout = params.grids + (params.grids if params.grids > 1 else 0)
         self.net = GuideNet(N_FEATURES + int(emissive), cout, params.layers, params.width, params.dense, params.growth)
 
     def forward(self, x, albedo, normal, depth, emissive=None, modulation=None):
-        m = albedo if modulation is None else modulation
+        m = modulation_albedo(albedo, emissive, self.albedo_clamp) if modulation is None else modulation
         if self.demodulated:
             irr, radiance = x, remodulate(x, m)
         else:
@@ -411,7 +417,7 @@ class GuideStage(nn.Module):
         g = self.grids
         guides = [torch.sigmoid(raw[:, i:i + 1]) for i in range(g)]
         weights = blend_weights(raw[:, g:]) if g > 1 else []
-        return irr, guides, weights
+        return irr, guides, weights, m
 
 
 class SplatStage(nn.Module):
@@ -460,7 +466,7 @@ class NBG(nn.Module):
         self.params = params
         self.temporal_enabled = temporal
         if temporal:
-            self.temporal = NBGTemporalStage(params.alpha, params.outlier_removal)
+            self.temporal = NBGTemporalStage(params.alpha, params.outlier_removal, params.albedo_clamp)
         self.guide = GuideStage(params, transfer, demodulated=temporal, emissive="emissive" in layers)
         self.splat = SplatStage(params)
         self.slice = SliceStage(params)
@@ -471,12 +477,11 @@ class NBG(nn.Module):
 
     def forward(self, *inputs):
         t = bind_inputs(self, inputs)
-        x, e = t["color"], t.get("emissive")
-        m = modulation_albedo(t["albedo"], e, self.params.albedo_clamp)
+        x, e, m = t["color"], t.get("emissive"), None
         if self.temporal_enabled:
-            x = self.temporal(x, m, t[state_input_name(ACCUM)], t[HISTORY],
-                              t.get(state_weight_name(ACCUM)))
-        irr, guides, weights = self.guide(x, t["albedo"], t["normal"], t["depth"], e, m)
+            x, m = self.temporal(x, t["albedo"], e, t[state_input_name(ACCUM)], t[HISTORY],
+                                 t.get(state_weight_name(ACCUM)))
+        irr, guides, weights, m = self.guide(x, t["albedo"], t["normal"], t["depth"], e, m)
         grids, coords = self.splat(irr, guides)
         out = self.slice(grids, coords, weights, m)
         return (out, irr) if self.temporal_enabled else (out,)
