@@ -1,0 +1,56 @@
+"""The long sequences' and held-out scenes' scores (docs/results/long/eval.sh) as markdown.
+
+    python docs/results/long/table.py > docs/results/long/table.md
+
+Reads every ``*.json`` of ``mcdenoise evaluate`` under docs/results/long/<set>/."""
+import json
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def load() -> dict:
+    """{set: {spp: {method: result}}}; a run's model is named "<spec> (<run folder>)"."""
+    out: dict = {}
+    for p in sorted(HERE.glob("*/*.json")):
+        d = json.loads(p.read_text())
+        setup = d.pop("_setup")
+        who = p.stem.rsplit("-", 1)[0]
+        for m, r in d.items():
+            label = m if who == "baseline" else f"{m} ({who})"
+            out.setdefault(p.parent.name, {}).setdefault(setup["spp"], {})[label] = (r, setup)
+    return out
+
+
+def _f(x, fmt):
+    return "-" if x is None else format(x, fmt)
+
+
+def main() -> None:
+    res = load()
+    for name, by_spp in res.items():
+        _, setup = next(iter(next(iter(by_spp.values())).values()))
+        print(f"## {name}\n\n`{setup['data']}`: {setup['sequences']} sequence(s); PSNR dB over all frames and "
+              f"after {setup['warmup']} warm-up frames, TRMAE (Eq. 16) and the motion-compensated "
+              "temporal error (wte, metrics.warped_temporal_error: 1 = as steady as the reference, "
+              "more = flicker, less = smoothed in time beyond it) after warm-up.\n")
+        spps = sorted(by_spp)
+        print("| method | " + " | ".join(f"{s} spp PSNR all | after warm-up | TRMAE | wte" for s in spps) + " |")
+        print("|---|" + "---:|---:|---:|---:|" * len(spps))
+        methods = sorted({m for v in by_spp.values() for m in v},
+                         key=lambda m: (m != "noisy", m.startswith("oidn"), m))
+        for m in methods:
+            cells = []
+            for s in spps:
+                r = by_spp[s].get(m)
+                if r is None:
+                    cells += ["-"] * 4
+                    continue
+                r, a = r[0], r[0].get("after_warmup", {})
+                cells += [_f(r["psnr"], ".2f"), _f(a.get("psnr"), ".2f"), _f(a.get("trmae"), ".3f"), _f(a.get("wte"), ".3f")]
+            print(f"| {m} | " + " | ".join(cells) + " |")
+        print()
+
+
+if __name__ == "__main__":
+    main()
