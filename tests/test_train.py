@@ -237,3 +237,41 @@ def test_cosine_learning_rate_decays_over_the_steps(tiny_dataset, tmp_path):
     else:
         raise AssertionError("cosine without a finite --steps")
     assert not (tmp_path / "endless").exists()
+
+
+def test_weight_average_is_what_validation_scores_and_export_ships(tiny_dataset, tmp_path, capsys):
+    from mcdenoise.training.train import ema_decay, ema_update
+
+    # The warm-up: early updates follow the weights, later ones average over ~1/(1 - decay).
+    assert ema_decay(0.99, 0) == 0.1 and ema_decay(0.99, 10 ** 6) == 0.99
+    net = torch.nn.BatchNorm2d(2)
+    avg = {k: torch.zeros_like(v) for k, v in net.state_dict().items()}
+    net.num_batches_tracked += 7
+    ema_update(avg, net, 0.99, 0)
+    torch.testing.assert_close(avg["weight"], 0.9 * net.weight.detach(), rtol=0, atol=1e-7)
+    assert int(avg["num_batches_tracked"]) == 7
+
+    # Averaging never changes what the optimiser does: the live weights equal a run without it.
+    train("wskpn-3", tiny_dataset, tmp_path / "plain", steps=4, **KW)
+    train("wskpn-3", tiny_dataset, tmp_path / "avg", steps=4, ema=0.9, **KW)
+    plain = _weights(tmp_path / "plain")
+    ckpt = torch.load(tmp_path / "avg" / runs.CHECKPOINT_FILE, weights_only=False)
+    for k in plain:
+        torch.testing.assert_close(plain[k], ckpt["model"][k], rtol=0, atol=0, msg=k)
+    assert ckpt["ema_updates"] == 4
+    assert any(not torch.equal(ckpt["ema"][k], ckpt["model"][k]) for k in plain if plain[k].dtype.is_floating_point)
+    # The run folder ships the average: load_run (what export and evaluation rebuild from) holds it.
+    _, model, _ = runs.load_run(tmp_path / "avg")
+    for k, v in model.state_dict().items():
+        torch.testing.assert_close(v, ckpt["ema"][k], rtol=0, atol=0, msg=k)
+    # Resume is exact for the average too, and keeps the run's decay.
+    train("wskpn-3", tiny_dataset, tmp_path / "split", steps=2, ema=0.9, **KW)
+    train("wskpn-3", tiny_dataset, tmp_path / "split", steps=4, resume=True, **KW)
+    split = torch.load(tmp_path / "split" / runs.CHECKPOINT_FILE, weights_only=False)
+    for k in plain:
+        torch.testing.assert_close(split["ema"][k], ckpt["ema"][k], rtol=0, atol=0, msg=k)
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "split"), "--resume",
+                 "--ema", "0.5"]) == 2
+    assert "keeps its average" in capsys.readouterr().err
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "bad"), "--ema", "1"]) == 2
+    assert "--ema must be a decay" in capsys.readouterr().err

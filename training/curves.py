@@ -133,6 +133,8 @@ def add_arguments(p) -> None:
     p.add_argument("--window", type=int, default=None)
     p.add_argument("--spp", type=int, nargs="+", default=None)
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="where every run trains")
+    p.add_argument("--ema", type=float, default=None, metavar="DECAY",
+                   help="every run keeps a moving average of its weights, which the curve scores (train --ema)")
     add_seed(p, "initial weights and the order of examples of every run")
     add_threads(p)
 
@@ -147,7 +149,7 @@ def main(args) -> int:
     res = curves(args.spec, args.data, args.test, args.out, sequences=tuple(args.sequences or (None,)),
                  vary=tuple(args.vary) if args.vary else None, steps=args.steps, eval_every=args.eval_every,
                  batch_size=args.batch_size, crop=args.crop, window=args.window, spp=args.spp, seed=args.seed,
-                 threads=args.threads, device=args.device, minutes=1e9)
+                 threads=args.threads, device=args.device, minutes=1e9, ema=args.ema)
     write(res, args.out, command_line("curves", args))
     print(f"wrote {args.out}/curves.md, curves.json and curves.png")
     return 0

@@ -4,7 +4,9 @@ Layout of ``RUN/``::
 
     spec.toml        the model spec as trained (a copy, so later edits to models_spec/ don't leak in)
     config.json      final training configuration (data, seeds, steps, optimiser, ...)
-    checkpoint.pt    {"model": state_dict, "optimizer": ..., "step": int, "rng": ..., ...}
+    checkpoint.pt    {"model": state_dict, "optimizer": ..., "step": int, "rng": ..., "ema": state_dict
+                     or None, ...}: "model" is what the optimiser steps and resume continues;
+                     "ema", where the run averages its weights (train --ema), is what it ships
     metrics.jsonl    one JSON object per validation (step, epoch, val metrics, wall time)
     code_hash.txt    sha256 over the package's source files and the spec
 """
@@ -47,7 +49,8 @@ def init_run(run_dir: str | os.PathLike, spec_path: str | os.PathLike, config: d
 
 
 def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
-    """Rebuild ``(spec, model, checkpoint)`` from a run folder alone (eval mode, weights loaded).
+    """Rebuild ``(spec, model, checkpoint)`` from a run folder alone (eval mode, weights loaded:
+    the run's weight average where it kept one, else its last weights).
 
     Raises FileNotFoundError naming the missing file, ValueError for a checkpoint that cannot
     be read or does not fit the spec.
@@ -70,7 +73,7 @@ def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
     if not isinstance(ckpt, dict) or "model" not in ckpt:
         raise ValueError(f"{run / CHECKPOINT_FILE}: holds no model weights")
     try:
-        model.load_state_dict(ckpt["model"])
+        model.load_state_dict(ckpt["ema"] if ckpt.get("ema") is not None else ckpt["model"])
     except RuntimeError as e:  # the spec was edited after training, or files from two runs
         first = next((ln.strip() for ln in str(e).splitlines()[1:] if ln.strip()), str(e))
         raise ValueError(f"{run}: the checkpoint does not match {SPEC_FILE} ({first})") from None
