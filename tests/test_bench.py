@@ -385,3 +385,20 @@ def test_evaluate_scores_after_a_warmup_and_with_another_alpha(tiny_dataset, tmp
     assert a["psnr"] != low                 # the weight changed what the history gave
     assert "after warm-up" in capsys.readouterr().out
     assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--alpha", "0", "--no-oidn"]) == 2
+
+
+def test_evaluate_scores_each_model_without_its_history_beside_it(tiny_dataset, tmp_path):
+    import json
+
+    wskpn = next(p for p in shipped_models() if "wskpn-3" in p)
+    out = tmp_path / "e.json"
+    assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--no-oidn", "--json", str(out)]) == 0
+    plain = json.loads(out.read_text())
+    assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--no-oidn", "--no-history", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert sorted(k for k in res if k != "_setup") == ["noisy", "wskpn-3", "wskpn-3 (no history)"]
+    # The reset copy is its own driver: the model's row is what it is without the flag...
+    assert res["wskpn-3"] == plain["wskpn-3"]
+    # ...and the history changed what the frames after the first look like.
+    assert res["wskpn-3 (no history)"]["frames"] == res["wskpn-3"]["frames"]
+    assert res["wskpn-3 (no history)"]["psnr"] != res["wskpn-3"]["psnr"]

@@ -8,6 +8,8 @@ reset between sequences), at ``--spp`` samples per pixel taken from the stored p
 
 Metrics from :mod:`training.metrics`: PSNR (ANF Eq. 14, over all frames), SSIM and FLIP, SMAPE,
 relMSE over all frames, and TRMAE (mean over sequences of 2+ frames).  torch is not needed.
+With ``no_history`` every ONNX model is also scored reset before each frame (rows
+"<name> (no history)", :class:`training.methods.WithoutHistory`): what its history earns.
 """
 from __future__ import annotations
 
@@ -31,16 +33,23 @@ def default_methods(models: list[str], oidn: bool = True) -> list[str]:
 
 def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, threads: int = 0,
              stills: bool = False, log=print, warmup: int = 0, accumulate_alpha: float | None = None,
-             history_spp: float | None = None) -> dict:
+             history_spp: float | None = None, no_history: bool = False) -> dict:
     """{method: {psnr, ssim, flip, smape, relmse, trmae, wte, frames[, after_warmup]}} over every
     sequence in ``data``, plus ``"_setup"``.  ``models``: ONNX files and/or method names;
     ``noisy`` and (with ``oidn``) ``oidn-high`` are always added. ``warmup``: also score the
     frames after the first ``warmup`` of each sequence; ``accumulate_alpha`` / ``history_spp``:
-    every model's accumulation weight instead of its file's (see ``Denoiser.load``)."""
+    every model's accumulation weight instead of its file's (see ``Denoiser.load``);
+    ``no_history``: also every ONNX model reset before each frame."""
+    from mcdenoise.training.methods import ONNXModel, WithoutHistory
+
     sources = default_methods(models, oidn)
     methods = [load_method(n, threads=threads, accumulate_alpha=accumulate_alpha, history_spp=history_spp)
                for n in sources]
     check_distinct({n: m.name for n, m in zip(sources, methods)})
+    if no_history:
+        methods += [WithoutHistory(load_method(n, threads=threads, accumulate_alpha=accumulate_alpha,
+                                                  history_spp=history_spp)) for n, m in zip(sources, methods)
+                    if isinstance(m, ONNXModel)]
     seqs = read_sequences(data, stills)
     results = run_methods(methods, seqs, spp, log=log, warmup=warmup)
     results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
@@ -85,6 +94,8 @@ def add_arguments(p):
                    help="every model's accumulation weight of the current frame, in (0, 1], instead of its file's")
     p.add_argument("--history-spp", type=float, default=None, metavar="K",
                    help="every model's accumulation weight spp / (spp + K) instead of its file's (0: the fixed weight)")
+    p.add_argument("--no-history", action="store_true",
+                   help="also score every model reset before each frame (rows '(no history)'): what its history earns")
     p.add_argument("--json", default=None, help="write the results as JSON here")
     add_threads(p)
 
@@ -93,7 +104,8 @@ def main(args) -> int:
     if args.warmup < 0:
         raise ValueError(f"--warmup must be >= 0, got {args.warmup}")
     res = evaluate(args.models, args.data, args.spp, not args.no_oidn, args.threads, args.stills,
-                   warmup=args.warmup, accumulate_alpha=args.alpha, history_spp=args.history_spp)
+                   warmup=args.warmup, accumulate_alpha=args.alpha, history_spp=args.history_spp,
+                   no_history=args.no_history)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0

@@ -2,7 +2,8 @@
 # Issue 15 section 1: every shipped model, the scale sittings' runs, our SVGF-style filter and
 # Open Image Denoise on the long test sequences and the hand-made held-out scenes, as a
 # real-time user sees them: through the driver with history, scored over all frames and after
-# 8 warm-up frames (the bench's LONG_WARMUP), at 1 and 4 spp (the bench's LONG_SPP).
+# 8 warm-up frames (the bench's LONG_WARMUP), at 1 and 4 spp (the bench's LONG_SPP); every model
+# also reset before each frame ("(no history)"), so what each history earns is read off.
 #
 # Usage: bash docs/results/long/eval.sh [SET...]   (default: every set whose folder exists;
 #   render them with docs/render-queue.sh, or one by one with the commands testsets.py prints)
@@ -23,10 +24,10 @@ for set in "${sets[@]}"; do
   mkdir -p "$out/$set"
   for spp in 1 4; do
     mcdenoise evaluate noisy oidn-fast svgf models/wskpn-6.onnx models/wskpn-3.onnx models/nbg-2l-3g.onnx \
-      models/anf-s.onnx models/ndle-s.onnx --data "data/$set" --spp $spp --warmup 8 --threads "$(nproc)" \
+      models/anf-s.onnx models/ndle-s.onnx --data "data/$set" --spp $spp --warmup 8 --threads "$(nproc)" --no-history \
       --json "$out/$set/baseline-${spp}spp.json"
     for r in "${runs[@]}"; do
-      mcdenoise evaluate "/tmp/$(basename "$r").onnx" --no-oidn --data "data/$set" --spp $spp --warmup 8 \
+      mcdenoise evaluate "/tmp/$(basename "$r").onnx" --no-oidn --data "data/$set" --spp $spp --warmup 8 --no-history \
         --threads "$(nproc)" --json "$out/$set/$(basename "$r")-${spp}spp.json"
     done
   done

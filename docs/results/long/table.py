@@ -22,6 +22,13 @@ def load() -> dict:
     return out
 
 
+def _bare(label: str) -> str:
+    """The label of ``label``'s model reset before every frame: "<spec> (no history)", with a
+    run's folder kept after it ("<spec> (no history) (<run>)")."""
+    spec, _, run = label.partition(" (")
+    return f"{spec} (no history)" + (f" ({run}" if run else "")
+
+
 def _f(x, fmt):
     return "-" if x is None else format(x, fmt)
 
@@ -33,10 +40,12 @@ def main() -> None:
         print(f"## {name}\n\n`{setup['data']}`: {setup['sequences']} sequence(s); PSNR dB over all frames and "
               f"after {setup['warmup']} warm-up frames, TRMAE (Eq. 16) and the motion-compensated "
               "temporal error (wte, metrics.warped_temporal_error: 1 = as steady as the reference, "
-              "more = flicker, less = smoothed in time beyond it) after warm-up.\n")
+              "more = flicker, less = smoothed in time beyond it) after warm-up; history: what the model's "
+              "history earns after warm-up (its PSNR minus the same model's reset before every frame, "
+              "the \"(no history)\" row; a history must never make a sequence worse than none).\n")
         spps = sorted(by_spp)
-        print("| method | " + " | ".join(f"{s} spp PSNR all | after warm-up | TRMAE | wte" for s in spps) + " |")
-        print("|---|" + "---:|---:|---:|---:|" * len(spps))
+        print("| method | " + " | ".join(f"{s} spp PSNR all | after warm-up | TRMAE | wte | history" for s in spps) + " |")
+        print("|---|" + "---:|---:|---:|---:|---:|" * len(spps))
         methods = sorted({m for v in by_spp.values() for m in v},
                          key=lambda m: (m != "noisy", m.startswith("oidn"), m))
         for m in methods:
@@ -44,10 +53,14 @@ def main() -> None:
             for s in spps:
                 r = by_spp[s].get(m)
                 if r is None:
-                    cells += ["-"] * 4
+                    cells += ["-"] * 5
                     continue
-                r, a = r[0], r[0].get("after_warmup", {})
-                cells += [_f(r["psnr"], ".2f"), _f(a.get("psnr"), ".2f"), _f(a.get("trmae"), ".3f"), _f(a.get("wte"), ".3f")]
+                r, a = r[0], r[0].get("after_warmup") or {}
+                bare = by_spp[s].get(_bare(m))
+                earns = None if bare is None or a.get("psnr") is None else \
+                    a["psnr"] - (bare[0].get("after_warmup") or {}).get("psnr", float("nan"))
+                cells += [_f(r["psnr"], ".2f"), _f(a.get("psnr"), ".2f"), _f(a.get("trmae"), ".3f"),
+                          _f(a.get("wte"), ".3f"), _f(earns, "+.2f")]
             print(f"| {m} | " + " | ".join(cells) + " |")
         print()
 
