@@ -259,6 +259,10 @@ def test_weight_average_is_what_validation_scores_and_export_ships(tiny_dataset,
     for k in plain:
         torch.testing.assert_close(plain[k], ckpt["model"][k], rtol=0, atol=0, msg=k)
     assert ckpt["ema_updates"] == 4
+    # Each validation scores the average and, beside it, the live weights: those are the plain run's.
+    last, plain_last = runs.read_metrics(tmp_path / "avg")[-1], runs.read_metrics(tmp_path / "plain")[-1]
+    assert last["live_val_psnr"] == plain_last["val_psnr"] and last["val_psnr"] != plain_last["val_psnr"]
+    assert "live_val_psnr" not in plain_last
     assert any(not torch.equal(ckpt["ema"][k], ckpt["model"][k]) for k in plain if plain[k].dtype.is_floating_point)
     # The run folder ships the average: load_run (what export and evaluation rebuild from) holds it.
     _, model, _ = runs.load_run(tmp_path / "avg")

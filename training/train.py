@@ -423,6 +423,10 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         ema_model.load_state_dict(ema_state)
         return ema_model
 
+    # With an average, each validation also scores the live weights ("live_*" metrics): one run
+    # then shows what the average earns at every point of its curve.
+    val_kw["live"] = model if ema_model is not None else None
+
     budget_s = None if config["minutes"] is None else 60.0 * config["minutes"]
     bar = None
     if not quiet and rank == 0:
@@ -515,12 +519,17 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
 
 
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
-              batch_size: int = 1, window: int = 1, device: str = "cpu") -> dict:
+              batch_size: int = 1, window: int = 1, device: str = "cpu", live=None) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
            "final": final, "examples": step * batch_size, "frames_seen": step * batch_size * window,
            **evaluate(model, val_set, protocol, device=device)}
     if test_set is not None:
         row.update({"test" + k[3:]: v for k, v in evaluate(model, test_set, protocol, device=device).items() if k.startswith("val_")})
+    if live is not None:
+        row.update({"live_" + k: v for k, v in evaluate(live, val_set, protocol, device=device).items() if k.startswith("val_")})
+        if test_set is not None:
+            row.update({"live_test" + k[3:]: v for k, v in evaluate(live, test_set, protocol, device=device).items()
+                        if k.startswith("val_")})
     runs.append_metrics(run, row)
     print(f"[step {step} epoch {epoch}] val PSNR {row['val_psnr']:.2f} dB (noisy {row['noisy_psnr']:.2f}), "
           f"SMAPE {row['val_smape']:.4f}", file=sys.stderr)
