@@ -7,7 +7,7 @@
 #   bash docs/results/device/gpu_train.sh SPEC[,SPEC...] SCENES MINUTES
 # (several specs train one after another on the same rendered shard, MINUTES each; SEED=N picks
 # the shard's seed, default 10, a new one each session of a chain; FIREFLIES=D trains with the
-# outlier augmentation; with one
+# outlier augmentation; EMA=DECAY keeps the weights' moving average (train --ema); with one
 # spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
 # docs/results/scale, so a GPU session continues the CPU sittings' chain)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
@@ -43,7 +43,7 @@ for one in ${spec//,/ }; do
   start=$(date +%s)
   mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
-    ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" \
+    ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
   tail -n 3 "$OUT/train-$one.log"
