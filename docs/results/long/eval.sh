@@ -22,6 +22,8 @@ done
 for set in "${sets[@]}"; do
   [ -f "data/$set/manifest.json" ] || { echo "eval.sh: data/$set not rendered, skipped" >&2; continue; }
   mkdir -p "$out/$set"
+  # render --check-references: two independent references of each sequence's first frame
+  [ ! -f "data/$set/reference_check.json" ] || cp "data/$set/reference_check.json" "$out/$set/"
   for spp in 1 4; do
     mcdenoise evaluate noisy oidn-fast svgf models/wskpn-6.onnx models/wskpn-3.onnx models/nbg-2l-3g.onnx \
       models/anf-s.onnx models/ndle-s.onnx --data "data/$set" --spp $spp --warmup 8 --threads "$(nproc)" --no-history \

@@ -7,12 +7,17 @@ import json
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+#: What ``mcdenoise render --check-references`` writes (training.render.command.REFERENCE_CHECK),
+#: copied beside the set's scores by eval.sh.
+REFERENCE_CHECK = "reference_check.json"
 
 
 def load() -> dict:
     """{set: {spp: {method: result}}}; a run's model is named "<spec> (<run folder>)"."""
     out: dict = {}
     for p in sorted(HERE.glob("*/*.json")):
+        if p.name == REFERENCE_CHECK:
+            continue
         d = json.loads(p.read_text())
         setup = d.pop("_setup")
         who = p.stem.rsplit("-", 1)[0]
@@ -43,6 +48,13 @@ def main() -> None:
               "more = flicker, less = smoothed in time beyond it) after warm-up; history: what the model's "
               "history earns after warm-up (its PSNR minus the same model's reset before every frame, "
               "the \"(no history)\" row; a history must never make a sequence worse than none).\n")
+        check = HERE / name / REFERENCE_CHECK
+        if check.exists():
+            c = json.loads(check.read_text())
+            print(f"References: two independent {c['ref_spp']}-spp references of each sequence's first frame "
+                  f"agree to {c['min_db']:.2f} dB at worst ({', '.join(f'{v:.2f}' for v in c['sequences'].values())}), "
+                  f"so each is about {c['min_db'] + 3:.1f} dB from the converged image (the difference of two "
+                  "carries both noises): a method's PSNR well below that is measured, not the references' noise.\n")
         spps = sorted(by_spp)
         print("| method | " + " | ".join(f"{s} spp PSNR all | after warm-up | TRMAE | wte | history" for s in spps) + " |")
         print("|---|" + "---:|---:|---:|---:|---:|" * len(spps))
