@@ -391,12 +391,15 @@ def test_evaluate_scores_each_model_without_its_history_beside_it(tiny_dataset, 
     import json
 
     wskpn = next(p for p in shipped_models() if "wskpn-3" in p)
+    ndle = next(p for p in shipped_models() if "ndle-s" in p)
     out = tmp_path / "e.json"
     assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--no-oidn", "--json", str(out)]) == 0
     plain = json.loads(out.read_text())
-    assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--no-oidn", "--no-history", "--json", str(out)]) == 0
+    assert cli_main(["evaluate", wskpn, ndle, "--data", tiny_dataset, "--no-oidn", "--no-history",
+                     "--json", str(out)]) == 0
     res = json.loads(out.read_text())
-    assert sorted(k for k in res if k != "_setup") == ["noisy", "wskpn-3", "wskpn-3 (no history)"]
+    # ndle-s keeps no history: nothing to reset, no second row.
+    assert sorted(k for k in res if k != "_setup") == ["ndle-s", "noisy", "wskpn-3", "wskpn-3 (no history)"]
     # The reset copy is its own driver: the model's row is what it is without the flag...
     assert res["wskpn-3"] == plain["wskpn-3"]
     # ...and the history changed what the frames after the first look like.

@@ -8,7 +8,7 @@ reset between sequences), at ``--spp`` samples per pixel taken from the stored p
 
 Metrics from :mod:`training.metrics`: PSNR (ANF Eq. 14, over all frames), SSIM and FLIP, SMAPE,
 relMSE over all frames, and TRMAE (mean over sequences of 2+ frames).  torch is not needed.
-With ``no_history`` every ONNX model is also scored reset before each frame (rows
+With ``no_history`` every ONNX model that keeps a history is also scored reset before each frame (rows
 "<name> (no history)", :class:`training.methods.WithoutHistory`): what its history earns.
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, thre
     ``noisy`` and (with ``oidn``) ``oidn-high`` are always added. ``warmup``: also score the
     frames after the first ``warmup`` of each sequence; ``accumulate_alpha`` / ``history_spp``:
     every model's accumulation weight instead of its file's (see ``Denoiser.load``);
-    ``no_history``: also every ONNX model reset before each frame."""
+    ``no_history``: also every ONNX model that keeps a history, reset before each frame."""
     from mcdenoise.training.methods import ONNXModel, WithoutHistory
 
     sources = default_methods(models, oidn)
@@ -49,7 +49,7 @@ def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, thre
     if no_history:
         methods += [WithoutHistory(load_method(n, threads=threads, accumulate_alpha=accumulate_alpha,
                                                   history_spp=history_spp)) for n, m in zip(sources, methods)
-                    if isinstance(m, ONNXModel)]
+                    if isinstance(m, ONNXModel) and m.denoiser.protocol.temporal]
     seqs = read_sequences(data, stills)
     results = run_methods(methods, seqs, spp, log=log, warmup=warmup)
     results["_setup"] = {"data": str(data), "sequences": len(seqs), "spp": spp,
@@ -95,7 +95,7 @@ def add_arguments(p):
     p.add_argument("--history-spp", type=float, default=None, metavar="K",
                    help="every model's accumulation weight spp / (spp + K) instead of its file's (0: the fixed weight)")
     p.add_argument("--no-history", action="store_true",
-                   help="also score every model reset before each frame (rows '(no history)'): what its history earns")
+                   help="also score every model that keeps a history reset before each frame (rows '(no history)'): what its history earns")
     p.add_argument("--json", default=None, help="write the results as JSON here")
     add_threads(p)
 
