@@ -29,6 +29,7 @@ diverging loss stop every process at the same step.
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -397,8 +398,6 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         if src is not None and src.get("ema") is not None:
             ema_state = {k: v.to(device) for k, v in src["ema"].items()}
             ema_updates = src.get("ema_updates", 0)
-        import copy
-
         ema_model = copy.deepcopy(model)
     forward = model
     if world > 1:
