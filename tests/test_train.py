@@ -135,8 +135,12 @@ def test_two_processes_match_one_with_the_same_global_batch(tiny_dataset, tmp_pa
     assert main([*args, "--out", str(tmp_path / "one")]) == 0
     a, b = _weights(tmp_path / "one"), _weights(tmp_path / "two")
     assert a.keys() == b.keys()
+    # Two processes sum each gradient in another order than one (half batches, one thread
+    # each), and Adam divides by the gradient's running magnitude, which amplifies rounding
+    # where a gradient is near 0: 1.8e-6 on this Xeon, under 1e-6 on the EPYC hosts. A wrong
+    # share or a missing average moves a weight by the order of an Adam step (lr = 1e-3).
     for k in a:
-        torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-6, msg=k)
+        torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-5, msg=k)
     cfg = json.loads((tmp_path / "two" / runs.CONFIG_FILE).read_text())
     assert cfg["batch_size"] == 4 and cfg["processes"] == 2
     assert len(runs.read_metrics(tmp_path / "two")) == len(runs.read_metrics(tmp_path / "one"))
