@@ -109,3 +109,19 @@ def test_bad_flag_values(argv, capsys):
         main(argv)
     err = capsys.readouterr().err
     assert e.value.code == 2 and "Traceback" not in err and err.strip().splitlines()[-1].startswith(f"mcdenoise {argv[0]}: error:"), err
+
+
+def test_scoring_a_set_still_being_rendered(tiny_dataset, tmp_path, capsys):
+    import shutil
+    from pathlib import Path
+
+    from mcdenoise.training.dataset import PARTIAL
+
+    data = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data)
+    seq = sorted(p for p in data.iterdir() if p.is_dir())[-1]
+    (seq / PARTIAL).write_text("{}")     # what render keeps there until the sequence is whole
+    _one_line_error(capsys, main(["evaluate", "noisy", "--data", str(data), "--no-oidn"]),
+                    seq.name, "not finished rendering")
+    (seq / PARTIAL).unlink()
+    assert main(["evaluate", "noisy", "--data", str(data), "--no-oidn"]) == 0

@@ -160,16 +160,25 @@ def reference_check(ts: TestSet, folder: str | None = None, log=print) -> dict:
 
 
 def sequences(root: str) -> list[list[str]]:
-    """Frame paths per sequence folder under ``root`` (or ``root`` itself if it holds frames)."""
+    """Frame paths per sequence folder under ``root`` (or ``root`` itself if it holds frames).
+
+    A sequence ``mcdenoise render`` has not finished (being rendered, or interrupted) is an
+    error, not a shorter sequence: scoring its first frames would silently compare methods
+    on another set than the one named (an evaluation started while a render was finishing
+    scored 43 of long-slow's 48 frames)."""
+    from mcdenoise.training.dataset import PARTIAL
+
     rootp = Path(root)
     if not rootp.is_dir():
         raise FrameError(f"{root}: dataset folder does not exist")
-    if frame_paths(root):
-        return [frame_paths(root)]
-    seqs = [frame_paths(p) for p in sorted(rootp.iterdir()) if p.is_dir() and frame_paths(p)]
-    if not seqs:
+    folders = [rootp] if frame_paths(root) else [p for p in sorted(rootp.iterdir()) if p.is_dir() and frame_paths(p)]
+    if not folders:
         raise FrameError(f"{root}: no sequences of frame_*.exr")
-    return seqs
+    unfinished = [str(p) for p in folders if (p / PARTIAL).exists()]
+    if unfinished:
+        raise FrameError(f"{unfinished[0]}: not finished rendering ({PARTIAL} is there{f', and {len(unfinished) - 1} more' if len(unfinished) > 1 else ''}): "
+                         "re-run the render command that made it (it resumes), then score it")
+    return [frame_paths(p) for p in folders]
 
 
 def read_sequences(data: str, stills: bool = False, limit: tuple[int, int] | None = None) -> list[list[Frame]]:
