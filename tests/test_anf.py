@@ -142,6 +142,7 @@ def test_driver_matches_the_training_unroll(anf):
         for k, v in arrays.items():
             batch.setdefault(k, []).append(torch.from_numpy(v))
     batch = {k: torch.stack(v, dim=1) for k, v in batch.items()}
+    batch["spp"] = torch.tensor([3.0])       # the driver knows each frame's spp: the bound on λ
     with torch.no_grad():
         ref = run_window(model, batch, spec.protocol)
     for t in range(3):
@@ -250,3 +251,47 @@ def test_the_driver_keeps_no_samples_between_frames(anf):
 def test_parameter_counts_are_what_the_readme_says(name, params):
     """The README and model card quote these; anf's matches the paper's 0.94 million (§5.4)."""
     assert sum(p.numel() for p in build_model(load_spec(name)).parameters()) == params
+
+
+def test_the_fed_weight_bounds_lambda_for_embedding_and_radiance(anf):
+    """λ = min(sigmoid(x), 1 − weight)·history for ē and L̄ alike: with the previous state one
+    above the current frame, the next state minus the frame is λ itself."""
+    _, spec, model = anf
+    assert "embed_weight" in model.input_names      # the shipped spec bounds λ (history_spp)
+    torch.manual_seed(1)
+    n, h, w = 3, 6, 7
+    params = torch.randn(n, model.params_.outputs, h, w) * 3.0
+    e, color = torch.rand(n, 32, h, w), torch.rand(n, 3, h, w)
+    zeros3, zeros8, ones = torch.zeros(n, 3, h, w), torch.zeros(n, 8, h, w), torch.ones(n, 1, h, w)
+    weight = torch.tensor([0.0, 0.5, 1.0]).reshape(n, 1, 1, 1)
+    with torch.no_grad():
+        out = model.kernels(params, e, color, e + 1, color + 1, zeros8, zeros3, ones, torch.tensor(3), weight)
+        free = model.kernels(params, e, color, e + 1, color + 1, zeros8, zeros3, ones, torch.tensor(3), None)
+    lam = torch.minimum(torch.sigmoid(params[:, -1:]), 1 - weight)
+    torch.testing.assert_close(out[1] - e, lam.expand_as(e))
+    torch.testing.assert_close(out[2] - color, lam.expand_as(color))
+    torch.testing.assert_close(out[1][0], free[1][0])           # weight 0: the learned λ untouched
+    torch.testing.assert_close(out[1][2], e[2])                 # weight 1: no history kept
+    assert (free[1][1] - e[1]).max() > 0.51 and (out[1][1] - e[1]).max() <= 0.5 + 1e-6   # it binds somewhere
+
+
+def test_the_file_tells_the_driver_which_weight_to_feed(anf):
+    """The contract names the fed weight with the spec's rule (the driver's feeding of it is
+    test_driver_matches_the_training_unroll: a frame of known spp against the trainer's)."""
+    path, spec, _ = anf
+    embed = spec.state[0]
+    assert embed.name == "embed" and embed.history_spp > 0 and 0 < embed.alpha <= 1
+    state = {s["name"]: s for s in Denoiser.load(path, log=lambda m: None).contract.state}
+    assert state["embed"]["weight_input"] == "embed_weight"
+    assert (state["embed"]["alpha"], state["embed"]["history_spp"]) == (embed.alpha, embed.history_spp)
+    assert all("weight_input" not in state[k] for k in ("radiance", "features", "output"))
+
+
+def test_a_weight_on_another_state_is_refused():
+    from mcdenoise.training.specs import SpecError, parse_spec
+
+    text = load_spec(SPEC).path.read_text().replace('name = "output"          # O of the last frame, Eq. 8\nchannels = 3',
+                                                    'name = "output"\nchannels = 3\nalpha = 0.5')
+    assert "alpha = 0.5" in text
+    with pytest.raises(SpecError, match="only on \\[\\[state\\]\\] 'embed'"):
+        build_model(parse_spec(text, "bad.toml"))

@@ -25,6 +25,14 @@ Pipeline (stages, in order; each is a submodule so exported node names carry its
 State (the driver reprojects each): ``embed`` ē, ``radiance`` L̄, ``features`` f_K and
 ``output`` O, so the learned λ (not a fixed α) decides how much history each pixel keeps.
 
+An ``embed`` state with an ``alpha`` (and ``history_spp``) in the spec bounds λ from above: the
+driver feeds ``embed_weight`` (N, 1, 1, 1), this frame's weight by the rule of every fed state
+weight (``spp / (spp + history_spp)`` for a frame of known spp, else ``alpha``;
+:meth:`runtime.temporal.Protocol.alpha`), and λ = min(sigmoid(x), 1 − weight)·history for both
+ē and L̄.  Not in the paper: a frame of more samples needs less history, and a learned λ that
+has only seen a few hundred steps holds on to stale content at 4 spp
+(docs/results/long/anf_lambda_probe.txt).  Without it the graph is the paper's.
+
 The kernel size is the run-time setting ``kernel_size`` (§3.4, Fig. 7; an int64 scalar input,
 the same for the spatial and the temporal kernels): the taps are a TorchScript loop, which the
 exporter writes as an ONNX ``Loop``, so one file runs at every size without re-export.
@@ -37,7 +45,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT
+from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT, state_weight_name
 from mcdenoise.training.models.common import SampleEmbedding, bind_inputs, conv3, eval_copy
 from mcdenoise.training.models.wskpn import pad_to_multiple
 from mcdenoise.training.specs import ModelSpec, SpecError, register
@@ -191,13 +199,18 @@ class Kernels(nn.Module):
         self.k, self.d = p.kernels, p.features
         self.regularizer = None
 
-    def forward(self, params, e, color, prev_embed, prev_radiance, prev_features, prev_output, history, size):
+    def forward(self, params, e, color, prev_embed, prev_radiance, prev_features, prev_output, history, size,
+                weight=None):
         """params: the U-Net's output; e (N, E, H, W); color (N, 3, H, W) linear HDR (exposed);
         prev_*: the driver's reprojected state (zeros without history); history (N, 1, H, W);
-        size: int64 scalar kernel size.  Returns (output, next_embed, next_radiance,
-        next_features, next_output), output (N, 3, H, W) linear HDR."""
+        size: int64 scalar kernel size; weight: None, or (N, 1, 1, 1) in [0, 1], the current
+        frame's least weight in the accumulation (λ <= 1 − weight).  Returns (output,
+        next_embed, next_radiance, next_features, next_output), output (N, 3, H, W) linear HDR."""
         k, d = self.k, self.d
-        lam = torch.sigmoid(params[:, -1:]) * history
+        lam = torch.sigmoid(params[:, -1:])
+        if weight is not None:
+            lam = torch.minimum(lam, 1.0 - weight)
+        lam = lam * history
         b = params[:, -2:-1] ** 2
         embed = e + (prev_embed - e) * lam
         radiance = color + (prev_radiance - color) * lam
@@ -237,6 +250,8 @@ class ANF(nn.Module):
         self.settings = {st.name: st.default for st in spec.setting}
         #: (group, transfer) of the ``samples`` input's channels, in order.
         self.sample_groups = spec.inputs.sample_groups
+        #: Fed state weights (graph input -> (alpha, history_spp)): the bound on λ, if any.
+        self.state_weights = {state_weight_name(s.name): (s.alpha, s.history_spp) for s in spec.state if s.alpha}
         self.embedding = Embedding(spec.inputs.sample_groups, p)
         self.unet = UNet(p)
         self.kernels = Kernels(p)
@@ -251,7 +266,7 @@ class ANF(nn.Module):
         e = self.embedding(t[SAMPLES_INPUT])
         params = self.unet(e, t["prev_embed"], t[HISTORY])
         out = self.kernels(params, e, t["color"], t["prev_embed"], t["prev_radiance"], t["prev_features"],
-                           t["prev_output"], t[HISTORY], t[KERNEL_SIZE])
+                           t["prev_output"], t[HISTORY], t[KERNEL_SIZE], t.get(state_weight_name("embed")))
         return out
 
     def deploy(self) -> "ANF":
@@ -272,6 +287,9 @@ def build_anf(spec: ModelSpec) -> ANF:
         raise SpecError(f"{where}: [[state]] must be {list(state_channels(p).items())} for type 'anf'")
     if [s.name for s in spec.setting] != [KERNEL_SIZE] or spec.setting[0].step % 2 or spec.setting[0].min % 2 == 0:
         raise SpecError(f"{where}: type 'anf' takes one [[setting]] {KERNEL_SIZE!r} over odd sizes")
+    if any(s.alpha for s in spec.state if s.name != "embed"):
+        raise SpecError(f"{where}: type 'anf' takes an alpha / history_spp only on [[state]] 'embed' (the one "
+                        "bound on λ, which blends ē and L̄ alike)")
     if spec.accumulate:
         raise SpecError(f"{where}: type 'anf' accumulates in its graph with the learned λ; no [[accumulate]]")
     return ANF(spec, p)
