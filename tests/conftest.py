@@ -37,3 +37,37 @@ def tiny_dataset(tmp_path_factory) -> str:
     if proc.returncode != 0:
         raise RuntimeError(f"tiny render failed ({' '.join(cmd)}):\n{proc.stderr[-4000:]}")
     return out
+
+
+# MCDENOISE_TEST_MEMORY=1 python -m pytest: after the run, the tests that raised the peak
+# resident memory of the test process (or of any one child it ran) by over 100 MB, largest
+# first. CI runs the suite on small machines; this finds what to make smaller.
+_MEMORY = os.environ.get("MCDENOISE_TEST_MEMORY") == "1"
+_peaks: list[tuple[float, str]] = []
+
+
+def _maxrss_mb() -> tuple[float, float]:
+    import resource
+
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not _MEMORY:
+        yield
+        return
+    before = _maxrss_mb()
+    yield
+    after = _maxrss_mb()
+    for kind, b, a in (("self", before[0], after[0]), ("child", before[1], after[1])):
+        if a - b > 100:
+            _peaks.append((a - b, f"{item.nodeid} ({kind}: peak {a:.0f} MB, +{a - b:.0f})"))
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _MEMORY:
+        terminalreporter.write_line("tests that raised the peak resident memory by over 100 MB:")
+        for _, line in sorted(_peaks, reverse=True):
+            terminalreporter.write_line("  " + line)
