@@ -3,7 +3,7 @@
 # what does it cost on clean frames? Two runs of one spec, same data, budget and seed, one thread
 # each side by side, with and without it; each scored by `mcdenoise stress` (every perturbation
 # case, the rendered ones left out) and on data/curves-test's 1-spp sequences.
-# Not yet run (2026-12-02: no CPU left in that session). Usage (after a sitting rendered data/train-256 and data/curves-test; nothing else running):
+# First run 2026-12-03 (README.md here: inconclusive at 300 steps). Usage (after a sitting rendered data/train-256 and data/curves-test; nothing else running):
 #   bash docs/results/fireflies/ab.sh [SPEC] [MINUTES] [DENSITY]
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
