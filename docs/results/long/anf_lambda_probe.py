@@ -6,7 +6,8 @@ frames, TRMAE, WTE).
 
     python docs/results/long/anf_lambda_probe.py > docs/results/long/anf_lambda_probe.txt
 
-Variants: ``base`` (as shipped), ``cap-C`` (λ <= C), ``no-temporal-kernel`` (temporal bandwidth
+Variants: ``base`` (the run as trained, without the spp bound that models/anf-s.onnx has carried
+since; docs/results/anf-history), ``cap-C`` (λ <= C), ``no-temporal-kernel`` (temporal bandwidth
 so large that every temporal tap's affinity is exp(-AFFINITY_BOUND)), ``no-accumulation`` (λ = 0,
 temporal kernel kept), and ``reset`` (the shipped model reset before every frame).
 """
