@@ -41,6 +41,22 @@ def test_item_shapes_and_spp_subsets(tiny_dataset):
     assert tuple(batch["color"].shape) == (2, 2, 3, 32, 32)
 
 
+@pytest.mark.parametrize("groups", [(), ("radiance", "normal")])
+def test_reading_processes_fill_the_cache_with_what_lazy_reads_give(tiny_dataset, groups):
+    lazy = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), crop=32, window=2, sample_groups=groups)
+    warm = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), crop=32, window=2, sample_groups=groups)
+    frames = [f for s in warm.seqs for f in s.frames]
+    assert warm.warm(processes=2) == len(frames) and sorted(warm._cache) == sorted(frames)
+    for f in frames:
+        a, b = lazy._frame(f), warm._cache[f]
+        assert a.samples.shape == b.samples.shape and (a.samples.shape[-1] < 25) == (not groups)
+        np.testing.assert_array_equal(a.samples, b.samples)
+        np.testing.assert_array_equal(a.reference, b.reference)
+    for i in range(4):
+        for k, v in lazy[i].items():
+            np.testing.assert_array_equal(v, warm[i][k], err_msg=k)
+
+
 def test_one_spp_colour_is_one_of_the_samples(tiny_dataset):
     ds = SequenceDataset(tiny_dataset, "all", LAYERS, crop=64, spp_choices=(1,), window=1, augment=False)
     item = ds.make_item(0, 0, 0, 0, 64, 1, 0)

@@ -34,6 +34,19 @@ def test_resume_continues_exactly(tiny_dataset, tmp_path):
     assert any(not torch.equal(fresh[k], a[k]) for k in a if a[k].dtype.is_floating_point)
 
 
+def test_loader_workers_build_the_same_batches(tiny_dataset, tmp_path):
+    # Batches built ahead by two forked processes train the same weights as the loop's own, and a
+    # run may resume with another number of them (it is not part of the run).
+    train("wskpn-3", tiny_dataset, tmp_path / "inline", steps=5, **KW)
+    train("wskpn-3", tiny_dataset, tmp_path / "workers", steps=3, loader_workers=2, **KW)
+    train("wskpn-3", tiny_dataset, tmp_path / "workers", steps=5, resume=True, loader_workers=1, **KW)
+    a, b = _weights(tmp_path / "inline"), _weights(tmp_path / "workers")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    ck = torch.load(tmp_path / "workers" / runs.CHECKPOINT_FILE, weights_only=False)
+    assert ck["step"] == 5 and ck["epoch"] >= 1, "the test must cross an epoch boundary"
+
+
 def test_init_starts_a_new_run_from_another_runs_weights(tiny_dataset, tmp_path, capsys):
     # A later sitting continues training on other shards: a new run, seeded by the old one's state.
     train("wskpn-3", tiny_dataset, tmp_path / "a", steps=2, **KW)
@@ -80,6 +93,9 @@ def test_train_errors_are_clear(tiny_dataset, tmp_path, capsys):
     assert main(["train", "wskpn-3", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "r3"),
                  "--steps", "1"]) == 2
     assert "does not exist" in capsys.readouterr().err
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "r4"), "--steps", "1",
+                 "--loader-workers", "-1"]) == 2
+    assert "--loader-workers must be >= 0" in capsys.readouterr().err and not (tmp_path / "r4").exists()
 
 
 def test_window_loss_adds_the_temporal_term_on_frame_differences():

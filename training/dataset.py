@@ -198,6 +198,14 @@ class SequenceDataset:
         groups = ("radiance", "albedo", "normal", "depth", "position") + (("emissive",) if "emissive" in self.layers else ())
         #: the per-sample features a pixel model's cache keeps, by index into SAMPLE_FEATURES
         self._columns = [i for g in groups for i in range(SAMPLE_GROUPS[g].start, SAMPLE_GROUPS[g].stop)]
+        #: those columns as runs (first, stop in the frame's layout; first in the cache's): slice
+        #: copies, where an index array on the last axis was most of an item's time
+        self._runs = []
+        for j, col in enumerate(self._columns):
+            if self._runs and self._runs[-1][1] == col:
+                self._runs[-1][1] += 1
+            else:
+                self._runs.append([col, col + 1, j])
         if not 0.0 <= fireflies < 1.0:
             raise ValueError(f"fireflies: a mean count per pixel in [0, 1), got {fireflies}")
         self.fireflies = float(fireflies)
@@ -214,15 +222,29 @@ class SequenceDataset:
     def _frame(self, path: str) -> Frame:
         fr = self._cache.get(path)
         if fr is None:
-            fr = read_frame(path, require=("color", "reference", "motion", "samples"))
-            if not self.samples:
-                # A pixel model's items are made from the features pixel_means() reads (14 or 15
-                # of 25) and the motion, valid and reference layers: the cache keeps just those
-                # (under a third of the frame: wskpn-6e's 448 frames at 256x256 x 8 spp took 15 GB).
-                fr.samples = np.ascontiguousarray(fr.samples[..., self._columns])
-                fr.albedo = fr.normal = fr.depth = fr.position = fr.emissive = None
-            self._cache[path] = fr
+            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns)
         return fr
+
+    def warm(self, processes: int = 1) -> int:
+        """Read every frame of the split into the cache, with that many reading processes;
+        returns how many frames there are. Before batch-building processes fork (``train
+        --loader-workers``), so they share the frames (copy-on-write) instead of each reading and
+        holding its own copy. Decoding is most of a read (0.3-0.7 s a frame of 256x256 x 8 spp
+        here), hence the processes."""
+        todo = [f for s in self.seqs for f in s.frames if f not in self._cache]
+        columns = None if self.samples else self._columns
+        if processes > 1 and len(todo) > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            # fork, as the loader's workers: the readers need nothing the parent has not imported
+            ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+            with ProcessPoolExecutor(min(processes, len(todo)), mp_context=ctx) as pool:
+                for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * len(todo))):
+                    self._cache[path] = fr
+        for path in todo:
+            self._frame(path)
+        return sum(len(s.frames) for s in self.seqs)
 
     def batch_spp(self, pos: int) -> int:
         """Samples per pixel of every item of step ``pos`` of the current epoch (per-sample
@@ -268,12 +290,12 @@ class SequenceDataset:
             fr = self._frame(seq.frames[t])
             if fr.size != (h, w):
                 raise FrameError(f"{fr.path}: size {fr.size} differs from {seq.frames[t0]} {(h, w)}")
-            sub = fr.samples[:, y0:y0 + c, x0:x0 + c]
             idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if rng is not None else np.arange(n)
-            sub = sub[idx]
+            sub = fr.samples[idx, y0:y0 + c, x0:x0 + c]     # a copy (index array)
             if not self.samples:    # the cached columns back in the frame format's layout
                 full = np.zeros(sub.shape[:-1] + (len(SAMPLE_FEATURES),), np.float32)
-                full[..., self._columns] = sub
+                for first, stop, at in self._runs:
+                    full[..., first:stop] = sub[..., at:at + stop - first]
                 sub = full
             win = (slice(y0, y0 + c), slice(x0, x0 + c))
             if flies is not None and (count := int(flies.poisson(self.fireflies * c * c))):
@@ -301,6 +323,19 @@ class SequenceDataset:
         item = {key: np.stack(v) for key, v in out.items()}
         item["spp"] = np.int64(n)
         return item
+
+
+def _read_for_cache(path: str, columns: list[int] | None) -> Frame:
+    """Frame ``path`` as a data set caches it: whole for a per-sample model (``columns``
+    None), else only the per-sample ``columns`` a pixel model's items are made from."""
+    fr = read_frame(path, require=("color", "reference", "motion", "samples"))
+    if columns is not None:
+        # A pixel model's items are made from the features pixel_means() reads (14 or 15 of 25)
+        # and the motion, valid and reference layers: the cache keeps just those (under a third
+        # of the frame: wskpn-6e's 448 frames at 256x256 x 8 spp took 15 GB).
+        fr.samples = np.ascontiguousarray(fr.samples[..., columns])
+        fr.albedo = fr.normal = fr.depth = fr.position = fr.emissive = None
+    return fr
 
 
 def collate(items: list[dict]):

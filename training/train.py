@@ -195,6 +195,9 @@ def add_arguments(p):
     p.add_argument("--ema", type=float, default=None, metavar="DECAY",
                    help="also keep a moving average of the weights (e.g. 0.995), which validation scores "
                         "and export ships (default: off)")
+    p.add_argument("--loader-workers", type=int, default=0, metavar="N",
+                   help="processes that build the next batches while the model trains (the run is the same "
+                        "with any N; on a GPU machine give most of its cores; default 0: in this process)")
     p.add_argument("--val-fraction", type=float, default=0.2,
                    help="fraction of scene seeds held out for validation")
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: each epoch)")
@@ -207,6 +210,46 @@ def batch_share(order: list[int], pos: int, batch_size: int, rank: int, world: i
     """The items process ``rank`` of ``world`` trains on at step ``pos`` of an epoch whose item
     order is ``order``: its equal share of the global batch order[pos·B : (pos+1)·B]."""
     return order[pos * batch_size:(pos + 1) * batch_size][rank::world]
+
+
+class EpochBatches:
+    """The batches of one epoch from step ``start`` on, as a map-style data set: entry j is
+    step ``start + j``'s collated batch (this process's share). A torch DataLoader's worker
+    processes build them ahead of the step; each is a pure function of (seed, epoch, step),
+    so the batches, and the run, are the ones the loop builds itself without workers."""
+
+    def __init__(self, data, order: list[int], start: int, stop: int, batch_size: int, rank: int,
+                 world: int, per_sample: bool):
+        self.data, self.order, self.start, self.stop = data, order, start, stop
+        self.batch_size, self.rank, self.world, self.per_sample = batch_size, rank, world, per_sample
+
+    def __len__(self) -> int:
+        return max(0, self.stop - self.start)
+
+    def __getitem__(self, j: int) -> dict:
+        from mcdenoise.training.dataset import collate
+
+        pos = self.start + j
+        # A per-sample model's batch shares one S (it stacks samples); pixel models draw per item.
+        spp_now = self.data.batch_spp(pos) if self.per_sample else None
+        return collate([self.data[i, spp_now] for i in batch_share(self.order, pos, self.batch_size, self.rank, self.world)])
+
+
+def epoch_batches(batches: EpochBatches, workers: int = 0, pin: bool = False):
+    """Iterate ``batches`` in order: in this process (``workers`` 0), or built ahead by that
+    many forked processes (two batches each in flight). Why: a step of wskpn-6e on a GPU takes
+    a fraction of the time one core needs to cut, subsample and transform its 8-frame items
+    (0.16 s for 8 items of 64x64 here), so without workers a GPU mostly waits for data."""
+    if workers <= 0:
+        return (batches[j] for j in range(len(batches)))
+    import multiprocessing
+
+    import torch
+
+    # fork: the workers share the parent's cached frames (SequenceDataset.warm) copy-on-write
+    ctx = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
+    return iter(torch.utils.data.DataLoader(batches, batch_size=None, shuffle=False, num_workers=workers,
+                                            prefetch_factor=2, pin_memory=pin, multiprocessing_context=ctx))
 
 
 def _distributed(device: str = "cpu") -> tuple[int, int]:
@@ -272,13 +315,17 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0,
-          ema: float | None = None) -> dict:
+          ema: float | None = None, loader_workers: int = 0) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
     data, budget and schedule are this run's own, the step count starts at 0, and the config
     records the source run and its step (``init``), so a chain of sittings on different shards
-    stays traceable."""
+    stays traceable.
+
+    ``loader_workers``: processes that build the next batches while the model trains
+    (:func:`epoch_batches`); the run is the same with any number, so it is not part of the
+    config and a resumed run may use another."""
     import torch
 
     if window is not None and window < 1:
@@ -291,6 +338,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--ema must be a decay in (0, 1), e.g. 0.995, got {ema}")
     if not 0.0 <= fireflies < 1.0:
         raise ValueError(f"--fireflies must be a mean count per pixel in [0, 1), got {fireflies}")
+    if loader_workers < 0:
+        raise ValueError(f"--loader-workers must be >= 0, got {loader_workers}")
     if device not in ("cpu", "cuda"):
         raise ValueError(f"--device must be cpu or cuda, got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
@@ -299,7 +348,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if device == "cuda" and world > 1:
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", rank)))
 
-    from mcdenoise.training.dataset import SequenceDataset, collate
+    from mcdenoise.training.dataset import SequenceDataset
     from mcdenoise.training.specs import build_model, load_spec
 
     if threads:
@@ -433,6 +482,11 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
 
         bar = tqdm(total=config["steps"], initial=step, desc=f"train {spec.name}", unit="step",
                    file=sys.stderr, dynamic_ncols=True)
+    if loader_workers and not quiet and rank == 0:
+        print(f"train: reading the {sum(len(q.frames) for q in train_set.seqs)} training frames before "
+              f"{loader_workers} loader processes start", file=sys.stderr)
+    if loader_workers:
+        train_set.warm(processes=loader_workers)
     model.train()
     t_start = time.perf_counter() - elapsed
     stopped = budget_s is not None and elapsed >= budget_s     # the same in every process
@@ -440,10 +494,11 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         train_set.set_epoch(epoch)
         order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(
             config["seed"] * 100003 + epoch)).tolist()
-        while pos < steps_per_epoch and step < config["steps"]:
-            # A per-sample model's batch shares one S (it stacks samples); pixel models draw per item.
-            spp_now = train_set.batch_spp(pos) if groups else None
-            batch = collate([train_set[i, spp_now] for i in batch_share(order, pos, bs, rank, world)])
+        batches = epoch_batches(EpochBatches(train_set, order, pos, steps_per_epoch, bs, rank, world, bool(groups)),
+                                loader_workers, pin=device == "cuda")
+        for batch in batches:
+            if step >= config["steps"]:
+                break
             batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
             outs = run_window(model, batch, protocol, forward=forward)
             loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
@@ -480,6 +535,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             if shared[1] > 0:
                 stopped = True
                 break
+        batches = None      # a DataLoader's workers end with their iterator
         if pos >= steps_per_epoch:
             pos = 0
             epoch += 1
@@ -543,6 +599,7 @@ def main(args) -> int:
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
-                lr_schedule=args.lr_schedule, init=args.init, fireflies=args.fireflies, ema=args.ema)
+                lr_schedule=args.lr_schedule, init=args.init, fireflies=args.fireflies, ema=args.ema,
+                loader_workers=args.loader_workers)
     print(json.dumps(row, indent=2))
     return 0

@@ -9,7 +9,9 @@
 # the shard's seed, default 10, a new one each session of a chain; FIREFLIES=D trains with the
 # outlier augmentation; EMA=DECAY keeps the weights' moving average (train --ema); with one
 # spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
-# docs/results/scale, so a GPU session continues the CPU sittings' chain)
+# docs/results/scale, so a GPU session continues the CPU sittings' chain; LOADER_WORKERS=N
+# processes build the batches, default 12 of the 16 cores: one core needs 1.1-1.9 s for a batch
+# of 16 8-frame 128x128 items, many times a GPU step, so without them the GPU mostly waits)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
 # them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
 # spp drawn from 1..8, 8-frame windows and the temporal term, and leaves the run folder in
@@ -43,6 +45,7 @@ for one in ${spec//,/ }; do
   start=$(date +%s)
   mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
+    --loader-workers "${LOADER_WORKERS:-12}" \
     ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
