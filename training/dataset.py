@@ -229,8 +229,8 @@ class SequenceDataset:
         """Read every frame of the split into the cache, with that many reading processes;
         returns how many frames there are. Before batch-building processes fork (``train
         --loader-workers``), so they share the frames (copy-on-write) instead of each reading and
-        holding its own copy. Decoding is most of a read (0.3-0.7 s a frame of 256x256 x 8 spp
-        here), hence the processes."""
+        holding its own copy. Decoding is most of a read (0.3-1 s a frame of 256x256 x 8 spp
+        here: docs/results/scale/batch_time.py), hence the processes."""
         todo = [f for s in self.seqs for f in s.frames if f not in self._cache]
         columns = None if self.samples else self._columns
         if processes > 1 and len(todo) > 1:

@@ -239,7 +239,7 @@ def epoch_batches(batches: EpochBatches, workers: int = 0, pin: bool = False):
     """Iterate ``batches`` in order: in this process (``workers`` 0), or built ahead by that
     many forked processes (two batches each in flight). Why: a step of wskpn-6e on a GPU takes
     a fraction of the time one core needs to cut, subsample and transform its 8-frame items
-    (0.16 s for 8 items of 64x64 here), so without workers a GPU mostly waits for data."""
+    (0.88 s for 16 items of 128x128 here: docs/results/scale/batch_time.py), so without workers a GPU mostly waits for data."""
     if workers <= 0:
         return (batches[j] for j in range(len(batches)))
     import multiprocessing

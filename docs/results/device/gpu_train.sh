@@ -10,7 +10,7 @@
 # outlier augmentation; EMA=DECAY keeps the weights' moving average (train --ema); with one
 # spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
 # docs/results/scale, so a GPU session continues the CPU sittings' chain; LOADER_WORKERS=N
-# processes build the batches, default 12 of the 16 cores: one core needs about 0.9 s for a batch
+# processes build the batches, default 12 of the 16 cores: one core needs 0.88 s for a batch
 # of 16 8-frame 128x128 items, many times a GPU step, so without them the GPU mostly waits)
 # It renders SCENES procedural scenes (8 frames, 256x256, 8 spp, 256-spp references, half of
 # them enclosed rooms) with Mitsuba's CUDA variant, trains SPEC on the GPU for MINUTES with
