@@ -57,6 +57,30 @@ def test_reading_processes_fill_the_cache_with_what_lazy_reads_give(tiny_dataset
             np.testing.assert_array_equal(v, warm[i][k], err_msg=k)
 
 
+@pytest.mark.parametrize("groups", [(), ("radiance", "normal")])
+def test_validation_caches_only_the_centre_crop_and_gives_the_same_items(tiny_dataset, groups):
+    """centre_only keeps a quarter of a frame at half its side (a per-sample model's validation
+    set ran out of memory with whole frames) and its items, warmed by processes or read lazily,
+    are byte for byte those of the whole-frame cache, at every spp."""
+    kw = dict(crop=32, window=2, augment=False, sample_groups=groups)
+    whole = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), **kw)
+    centre = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), centre_only=True, **kw)
+    warm = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), centre_only=True, **kw)
+    warm.warm(processes=2)
+    for i in range(len(whole)):
+        for spp in (None, 1, 4):
+            a, b, c = whole[i, spp], centre[i, spp], warm[i, spp]
+            assert a["color"].shape[-2:] == (32, 32)
+            for k in a:
+                np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+                np.testing.assert_array_equal(a[k], c[k], err_msg=k)
+    f = whole.seqs[0].frames[0]
+    assert whole._cache[f].samples.shape[1:3] == (64, 64) and centre._cache[f].samples.shape[1:3] == (32, 32)
+    assert centre._cache[f].reference.shape[:2] == (32, 32) and centre._cache[f].motion.shape[:2] == (32, 32)
+    with pytest.raises(ValueError, match="augment=False"):
+        SequenceDataset(tiny_dataset, "all", LAYERS, crop=32, centre_only=True)
+
+
 def test_one_spp_colour_is_one_of_the_samples(tiny_dataset):
     ds = SequenceDataset(tiny_dataset, "all", LAYERS, crop=64, spp_choices=(1,), window=1, augment=False)
     item = ds.make_item(0, 0, 0, 0, 64, 1, 0)

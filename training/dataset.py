@@ -171,11 +171,18 @@ class SequenceDataset:
         ``samples`` input.
       fireflies: mean outlier samples per pixel per frame (module docstring; 0: none); only
         with ``augment``.
+      centre_only: (only without ``augment``) cache just each frame's centre crop, the only
+        part its items read: a quarter of a 256x256 frame at crop 128. A per-sample model's
+        validation set cached whole frames (52 MB each at 8 spp) and, beside its training set,
+        ran a 12 GB process out of memory. :meth:`make_item`'s coordinates are then in the crop.
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
-                 samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=(), fireflies=0.0):
+                 samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=(), fireflies=0.0,
+                 centre_only=False):
+        if centre_only and augment:
+            raise ValueError("centre_only caches centre crops: it needs augment=False")
         self.seqs = split(discover(root), part, val_fraction)
         if max_sequences is not None:
             if max_sequences < 1:
@@ -209,6 +216,8 @@ class SequenceDataset:
         if not 0.0 <= fireflies < 1.0:
             raise ValueError(f"fireflies: a mean count per pixel in [0, 1), got {fireflies}")
         self.fireflies = float(fireflies)
+        #: the side of the centre crop the cache keeps (None: whole frames)
+        self._keep = self.crop if centre_only else None
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -222,7 +231,7 @@ class SequenceDataset:
     def _frame(self, path: str) -> Frame:
         fr = self._cache.get(path)
         if fr is None:
-            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns)
+            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns, self._keep)
         return fr
 
     def warm(self, processes: int = 1) -> int:
@@ -240,7 +249,8 @@ class SequenceDataset:
             # fork, as the loader's workers: the readers need nothing the parent has not imported
             ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
             with ProcessPoolExecutor(min(processes, len(todo)), mp_context=ctx) as pool:
-                for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * len(todo))):
+                for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * len(todo),
+                                                   [self._keep] * len(todo))):
                     self._cache[path] = fr
         for path in todo:
             self._frame(path)
@@ -325,10 +335,19 @@ class SequenceDataset:
         return item
 
 
-def _read_for_cache(path: str, columns: list[int] | None) -> Frame:
+def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = None) -> Frame:
     """Frame ``path`` as a data set caches it: whole for a per-sample model (``columns``
-    None), else only the per-sample ``columns`` a pixel model's items are made from."""
+    None), else only the per-sample ``columns`` a pixel model's items are made from; with
+    ``keep``, only the centre crop of that side (clamped to the frame) a validation item reads."""
     fr = read_frame(path, require=("color", "reference", "motion", "samples"))
+    if keep is not None:
+        h, w = fr.size
+        c = min(keep, h, w)
+        y0, x0 = (h - c) // 2, (w - c) // 2     # as SequenceDataset.__getitem__ without augment
+        for name in ("color", "albedo", "normal", "depth", "emissive", "position", "motion", "valid", "reference"):
+            if (arr := getattr(fr, name)) is not None:
+                setattr(fr, name, np.ascontiguousarray(arr[y0:y0 + c, x0:x0 + c]))
+        fr.samples = np.ascontiguousarray(fr.samples[:, y0:y0 + c, x0:x0 + c])
     if columns is not None:
         # A pixel model's items are made from the features pixel_means() reads (14 or 15 of 25)
         # and the motion, valid and reference layers: the cache keeps just those (under a third

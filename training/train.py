@@ -419,10 +419,10 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                                 fireflies=config.get("fireflies", 0.0))
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
-                              val_fraction=config["val_fraction"], sample_groups=groups)
+                              val_fraction=config["val_fraction"], sample_groups=groups, centre_only=True)
     test_set = None if not config.get("test_data") else SequenceDataset(
         config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
-        window=config["window"], augment=False, sample_groups=groups)
+        window=config["window"], augment=False, sample_groups=groups, centre_only=True)
     val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"], "device": device}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
