@@ -51,8 +51,11 @@ CHECK_SIZE = (54, 78)
 EXPORT_SPP, CHECK_SPP = 4, 3
 #: Max relative error of the float32 graph vs torch float64, see :func:`parity_error`.
 PARITY_TOL = 1e-4
-#: ... or this many times torch float32's own error vs float64, if that is larger.
-FLOAT32_MARGIN = 2.0
+#: ... or this many times torch float32's own error vs float64, if that is larger.  Two float32
+#: evaluations that sum in different orders have the same bulk error but maxima (over the check's
+#: ~25,000 elements) up to 3.5x apart: a fine-tuned anf-s failed at 2 with equal 99th
+#: percentiles (docs/results/anf/parity_tail.txt). A wrong op errs by 1e-2 and more.
+FLOAT32_MARGIN = 4.0
 #: A value is "dark" when its magnitude is below this fraction of the tensor's mean magnitude;
 #: there float32 rounding of sums of much larger values dominates any relative error, so its
 #: error is measured relative to DARK_FRACTION·mean instead of to itself.
