@@ -9,7 +9,9 @@
 # continues across sessions.
 # First try 2026-12-03 (README.md in fireflies/): the two side by side on one thread each took
 # 12 GB each (a per-sample model's training and validation sets both cache whole frames) and the
-# kernel killed the augmented one at step 90; hence one at a time.
+# kernel killed the augmented one at step 90; hence one at a time. Since then validation sets
+# cache only their 128x128 centre crops (SequenceDataset centre_only): a quarter of that set's
+# memory, and the step-90 export's parity failure was float32 rounding (../parity_tail.txt).
 # Short items (48x48 crops, 4-frame windows) so a CPU sitting gets a few hundred steps: 2.4-3 s
 # a step on 2 threads here against 11-26 s at the spec's 64x64 and 8 frames.
 # Usage (after a scale sitting rendered data/train-256 and data/curves-test; nothing else running):
