@@ -15,10 +15,12 @@
 # Short items (48x48 crops, 4-frame windows) so a CPU sitting gets a few hundred steps: 2.4-3 s
 # a step on 2 threads here against 11-26 s at the spec's 64x64 and 8 frames.
 # Usage (after a scale sitting rendered data/train-256 and data/curves-test; nothing else running):
-#   bash docs/results/anf/fireflies.sh [MINUTES] [DENSITY] [SEQUENCES]
+#   bash docs/results/anf/fireflies.sh [MINUTES] [DENSITY] [SEQUENCES] [STEPS]
+# STEPS: train (or resume) each arm to that many steps, MINUTES the cap; so the arms are
+# compared at equal steps (the first try's control reached 144 steps, the other arm 90).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
-minutes=${1:-20}; density=${2:-0.001}; seqs=${3:-12}
+minutes=${1:-20}; density=${2:-0.001}; seqs=${3:-12}; steps=${4:-1000000}
 out=docs/results/anf/fireflies
 mkdir -p "$out"
 # the stress test's clean base set (3 scenes x 4 frames, 128x128; minutes where missing)
@@ -26,11 +28,11 @@ eval "$(python -c "from mcdenoise.training.testsets import stress_set; print(str
 for d in 0 "$density"; do
   # per-sample items cache whole frames (52 MB at 256x256 x 8 spp): --max-sequences bounds memory
   if [ -f "$out/ff$d/config.json" ]; then
-    mcdenoise train anf-s --data data/train-256 --out "$out/ff$d" --resume --minutes "$minutes" --threads "$(nproc)" \
+    mcdenoise train anf-s --data data/train-256 --out "$out/ff$d" --resume --minutes "$minutes" --steps "$steps" --threads "$(nproc)" \
       --quiet >> "$out/ff$d.log" 2>&1
   else
     mcdenoise train anf-s --data data/train-256 --init docs/results/anf/run --out "$out/ff$d" --spp 1 2 4 8 \
-      --window 4 --crop 48 --temporal-weight 0.25 --minutes "$minutes" --steps 1000000 --threads "$(nproc)" \
+      --window 4 --crop 48 --temporal-weight 0.25 --minutes "$minutes" --steps "$steps" --threads "$(nproc)" \
       --max-sequences "$seqs" --val-every 100 --fireflies "$d" --quiet > "$out/ff$d.log" 2>&1
   fi
 done
