@@ -2,6 +2,7 @@
 import json
 
 import numpy as np
+import pytest
 import onnxruntime as ort
 import torch
 
@@ -228,6 +229,24 @@ def test_anf_trains_on_one_spp_per_batch_exports_and_denoises_the_rendered_frame
     assert "mcdenoise sweep" in (tmp_path / "sweep" / "sweep.md").read_text()
     assert main(["sweep", str(tmp_path / "anf.onnx"), "--data", tiny_dataset, "--values", "4",
                  "--out", str(tmp_path / "s2")]) == 2
+
+
+def test_lr_sets_the_peak_rate_of_a_new_run_and_a_resume_keeps_it(tiny_dataset, tmp_path):
+    """--lr: a run started with --init begins its schedule again, so a chain settles its
+    weights with a lower peak (docs/results/scale, sitting 4)."""
+    from mcdenoise.training.train import learning_rate
+
+    run = tmp_path / "low"
+    train("wskpn-3", tiny_dataset, run, steps=2, lr=2e-4, lr_schedule="cosine", **KW)
+    config = json.loads((run / runs.CONFIG_FILE).read_text())
+    ckpt = torch.load(run / runs.CHECKPOINT_FILE, weights_only=False)
+    assert config["lr"] == 2e-4 and ckpt["optimizer"]["param_groups"][0]["lr"] == learning_rate(config, 1) < 2e-4
+    with pytest.raises(ValueError, match="keeps its rate"):
+        train("wskpn-3", tiny_dataset, run, steps=3, resume=True, lr=1e-3, **KW)
+    for bad in (0.0, -1e-3, float("nan")):
+        with pytest.raises(ValueError, match="positive"):
+            train("wskpn-3", tiny_dataset, tmp_path / "bad", steps=1, lr=bad, **KW)
+    assert not (tmp_path / "bad").exists()
 
 
 def test_cosine_learning_rate_decays_over_the_steps(tiny_dataset, tmp_path):

@@ -188,6 +188,9 @@ def add_arguments(p):
                    help="where the model trains (cuda: a GPU; with torchrun, one per process)")
     p.add_argument("--temporal-weight", type=float, default=None,
                    help="weight of the loss of frame differences (ANF §4: 0.25; default: spec)")
+    p.add_argument("--lr", type=float, default=None,
+                   help="peak learning rate (default: the spec's); e.g. a lower one to settle the weights "
+                        "of a run started with --init, whose schedule starts again at its top")
     p.add_argument("--lr-schedule", choices=sorted(LR_SCHEDULES), default=None,
                    help="learning rate over the steps: constant (default), or cosine from the spec's "
                         "lr down to 1/20 of it at --steps (needs a finite --steps; a --minutes budget "
@@ -314,7 +317,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           val_every: int = 0, quiet: bool = False, window: int | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
-          lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0,
+          lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
           ema: float | None = None, loader_workers: int = 0) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
@@ -356,6 +359,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     run = Path(out)
     if init is not None and resume:
         raise ValueError("--init starts a new run; --resume continues one: give one of them")
+    if lr is not None and not (math.isfinite(lr) and lr > 0):
+        raise ValueError(f"--lr must be a positive number, got {lr}")
     init_ckpt = None if init is None else _init_checkpoint(init, spec_name)
     if resume:
         if not (run / runs.CONFIG_FILE).exists():
@@ -369,6 +374,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         if lr_schedule is not None and lr_schedule != config.get("lr_schedule", "constant"):
             raise ValueError(f"{run}: trained with --lr-schedule {config.get('lr_schedule', 'constant')}; "
                              "a resumed run keeps its schedule")
+        if lr is not None and lr != config["lr"]:
+            raise ValueError(f"{run}: trained with --lr {config['lr']}; a resumed run keeps its rate")
         if ema is not None and ema != config.get("ema"):
             raise ValueError(f"{run}: trained with --ema {config.get('ema')}; a resumed run keeps its average")
     else:
@@ -381,7 +388,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "steps": steps if steps is not None else tr.steps,
             "minutes": minutes if minutes is not None else tr.minutes,
             "batch_size": batch_size or tr.batch_size, "crop": crop or tr.crop,
-            "lr": tr.lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
+            "lr": tr.lr if lr is None else lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
             "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
             "regularizer_weight": tr.regularizer_weight, "lr_schedule": lr_schedule or "constant",
             "ema": ema, "val_fraction": val_fraction, "val_every": val_every,
@@ -599,7 +606,7 @@ def main(args) -> int:
                 threads=args.threads, val_fraction=args.val_fraction, val_every=args.val_every,
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
-                lr_schedule=args.lr_schedule, init=args.init, fireflies=args.fireflies, ema=args.ema,
+                lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
                 loader_workers=args.loader_workers)
     print(json.dumps(row, indent=2))
     return 0
