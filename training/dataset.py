@@ -33,8 +33,8 @@ from typing import Sequence
 
 import numpy as np
 
-from mcdenoise.runtime.frames import (MANIFEST, SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError, frame_paths, pixel_means,
-                            read_frame, read_meta)
+from mcdenoise.runtime.frames import (MANIFEST, PIXEL_LAYERS, SAMPLE_FEATURES, SAMPLE_GROUPS, Frame, FrameError, frame_paths,
+                            pixel_means, read_frame, read_meta)
 from mcdenoise.runtime.inputs import SanitizeReport, frame_inputs, sample_channels, sample_inputs
 
 #: Firefly augmentation: the outlier's radiance over the crop's reference mean, drawn
@@ -344,9 +344,9 @@ def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = Non
         h, w = fr.size
         c = min(keep, h, w)
         y0, x0 = (h - c) // 2, (w - c) // 2     # as SequenceDataset.__getitem__ without augment
-        for name in ("color", "albedo", "normal", "depth", "emissive", "position", "motion", "valid", "reference"):
-            if (arr := getattr(fr, name)) is not None:
-                setattr(fr, name, np.ascontiguousarray(arr[y0:y0 + c, x0:x0 + c]))
+        for layer in PIXEL_LAYERS:
+            if (arr := getattr(fr, layer.name)) is not None:
+                setattr(fr, layer.name, np.ascontiguousarray(arr[y0:y0 + c, x0:x0 + c]))
         fr.samples = np.ascontiguousarray(fr.samples[:, y0:y0 + c, x0:x0 + c])
     if columns is not None:
         # A pixel model's items are made from the features pixel_means() reads (14 or 15 of 25)

@@ -192,8 +192,8 @@ def add_arguments(p):
                    help="peak learning rate (default: the spec's); e.g. a lower one to settle the weights "
                         "of a run started with --init, whose schedule starts again at its top")
     p.add_argument("--lr-schedule", choices=sorted(LR_SCHEDULES), default=None,
-                   help="learning rate over the steps: constant (default), or cosine from the spec's "
-                        "lr down to 1/20 of it at --steps (needs a finite --steps; a --minutes budget "
+                   help="learning rate over the steps: constant (default), or cosine from the run's "
+                        "lr (--lr, else the spec's) down to 1/20 of it at --steps (needs a finite --steps; a --minutes budget "
                         "that stops first leaves it part way)")
     p.add_argument("--ema", type=float, default=None, metavar="DECAY",
                    help="also keep a moving average of the weights (e.g. 0.995), which validation scores "
