@@ -14,7 +14,8 @@
 #   DECAY, the weights' moving average that validation scores and export ships; default off)
 #   K           this sitting's number: its run is docs/results/scale/<SPEC>-<K>, started from
 #               <SPEC>-<K-1>; sitting 1 starts from scratch, or from INIT=RUN_FOLDER.
-#   RENDER_MIN  minutes of rendering, one shard per core at once (0: train on what is there).
+#   RENDER_MIN  minutes of rendering, one shard per core at once, the SHARDS in order as a queue
+#               (a core whose shard completes starts the next one; 0: train on what is there).
 #               The renders resume per frame, so the next call on this machine goes on with them.
 #   TRAIN_MIN   the training budget in minutes, on every core (its cosine rate is planned
 #               over STEPS, default 2400, and stops at whichever comes first). Train with
@@ -37,14 +38,24 @@ mcdenoise render --out data/curves-test --scenes 4 --frames 8 --spp 8 --ref-spp 
   --seed 11 --enclosed 0.5 --workers 1 < /dev/null
 
 if [ "$render_min" != 0 ]; then
+  # SHARDS is a queue shared out round-robin, one worker per core, so a core whose shard finishes
+  # early goes on with its next one instead of idling until the deadline.
+  deadline=$(( $(date +%s) + render_min * 60 ))
+  read -r -a queue <<< "$SHARDS"
   pids=()
-  for seed in $SHARDS; do
-    timeout "${render_min}m" nice -n 19 mcdenoise render --out "data/train-256/shard-$seed" \
-      --scenes 32 --frames 8 --size 256x256 --spp 8 --ref-spp 256 --seed "$seed" --enclosed 0.5 \
-      --workers 1 < /dev/null > "data/render-shard-$seed.log" 2>&1 &
+  for ((w = 0; w < cores && w < ${#queue[@]}; w++)); do
+    (
+      for ((i = w; i < ${#queue[@]}; i += cores)); do
+        seed=${queue[$i]}; left=$(( deadline - $(date +%s) ))
+        [ "$left" -gt 0 ] || break
+        timeout "$left" nice -n 19 mcdenoise render --out "data/train-256/shard-$seed" \
+          --scenes 32 --frames 8 --size 256x256 --spp 8 --ref-spp 256 --seed "$seed" --enclosed 0.5 \
+          --workers 1 < /dev/null >> "data/render-shard-$seed.log" 2>&1 || true    # a timeout ends a render on purpose
+      done
+    ) &
     pids+=($!)
   done
-  for p in "${pids[@]}"; do wait "$p" || true; done    # a timeout ends a render on purpose
+  for p in "${pids[@]}"; do wait "$p" || true; done
 fi
 
 # Sequences still rendering hold .partial.json and are left out by the data set.
