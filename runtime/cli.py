@@ -103,8 +103,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise
             raise CommandError(f"'mcdenoise {argv[0]}' needs the Python package {e.name!r}; "
                                f"install it (see README, set-up)") from None
-    except (CommandError, FrameError, OSError, ValueError) as e:
-        print(f"mcdenoise {argv[0]}: error: {_one_line(e)}", file=sys.stderr)
+    except (CommandError, FrameError, OSError, ValueError, MemoryError) as e:
+        # MemoryError: train's cache check says what to do; numpy's names the allocation
+        print(f"mcdenoise {argv[0]}: error: {_one_line(e) or type(e).__name__}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mcdenoise {argv[0]}: interrupted", file=sys.stderr)

@@ -9,7 +9,8 @@ from mcdenoise.runtime.frames import SAMPLE_FEATURES, SAMPLE_GROUPS, FrameError,
 from mcdenoise.runtime.writers import write_frame
 from mcdenoise.runtime.inputs import camera_axes
 from mcdenoise.runtime.temporal import reproject
-from mcdenoise.training.dataset import SequenceDataset, collate, dihedral, discover, split
+from mcdenoise.training.dataset import (SequenceDataset, cache_dtype_for, collate, dihedral, discover, split,
+                                        to_half)
 
 LAYERS = ("color", "albedo", "normal", "depth")
 
@@ -79,6 +80,49 @@ def test_validation_caches_only_the_centre_crop_and_gives_the_same_items(tiny_da
     assert centre._cache[f].reference.shape[:2] == (32, 32) and centre._cache[f].motion.shape[:2] == (32, 32)
     with pytest.raises(ValueError, match="augment=False"):
         SequenceDataset(tiny_dataset, "all", LAYERS, crop=32, centre_only=True)
+
+
+@pytest.mark.parametrize("groups", [(), ("radiance", "normal")])
+def test_a_float16_cache_halves_the_samples_and_rounds_items_only(tiny_dataset, groups):
+    """cache_dtype float16 holds the per-sample array in half the bytes (cache_bytes says so
+    before anything is read) and gives float32 items within float16 rounding of the exact ones,
+    training items (random crops and sample subsets) included."""
+    for augment in (False, True):
+        kw = dict(crop=32, window=2, augment=augment, sample_groups=groups)
+        exact = SequenceDataset(tiny_dataset, "all", LAYERS, **kw)
+        half = SequenceDataset(tiny_dataset, "all", LAYERS, cache_dtype="float16", **kw)
+        assert half.cache_bytes() < 0.75 * exact.cache_bytes() and half.cache_bytes() == exact.cache_bytes("float16")
+        for i in range(3):
+            a, b = exact[i], half[i]
+            assert a.keys() == b.keys()
+            for k in a:
+                assert b[k].dtype == a[k].dtype, k
+                if a[k].dtype == np.float32:
+                    # 5e-3: an averaged normal is re-normalised, which scales float16's 5e-4
+                    # up where the samples' normals disagree (a short mean vector)
+                    np.testing.assert_allclose(b[k], a[k], rtol=2e-3, atol=5e-3 if "normal" in k else 1e-3, err_msg=k)
+        f = half.seqs[0].frames[0]
+        assert half._cache[f].samples.dtype == np.float16 and exact._cache[f].samples.dtype == np.float32
+        assert half._cache[f].samples.nbytes * 2 == exact._cache[f].samples.nbytes
+    with pytest.raises(ValueError, match="cache_dtype"):
+        SequenceDataset(tiny_dataset, "all", LAYERS, cache_dtype="float64")
+
+
+def test_to_half_clips_finite_values_and_keeps_nan_and_inf():
+    a = np.array([1.0, 1e5, -1e6, np.inf, -np.inf, np.nan, 0.1], np.float32)
+    h = to_half(a)
+    assert h.dtype == np.float16
+    np.testing.assert_array_equal(h[:6], np.array([1.0, 65504, -65504, np.inf, -np.inf, np.nan], np.float16))
+    assert abs(float(h[6]) - 0.1) < 1e-4
+
+
+def test_the_automatic_cache_precision_fits_the_memory_or_says_what_to_do():
+    gb = 2**30
+    assert cache_dtype_for(10 * gb, 5 * gb, 20 * gb) == "float32"
+    assert cache_dtype_for(20 * gb, 10 * gb, 20 * gb) == "float16"
+    assert cache_dtype_for(20 * gb, 10 * gb, None) == "float32"     # unknown memory: as before
+    with pytest.raises(MemoryError, match="--max-sequences"):
+        cache_dtype_for(40 * gb, 20 * gb, 20 * gb)
 
 
 def test_one_spp_colour_is_one_of_the_samples(tiny_dataset):

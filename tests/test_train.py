@@ -249,6 +249,34 @@ def test_lr_sets_the_peak_rate_of_a_new_run_and_a_resume_keeps_it(tiny_dataset, 
     assert not (tmp_path / "bad").exists()
 
 
+def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resume(tiny_dataset, tmp_path, monkeypatch,
+                                                                                  capsys):
+    """--cache-dtype auto caches float32 where the frames fit in memory, float16 where only that
+    fits (sitting 5's 110 training sequences took 26 GB of a 23 GB machine in float32), and
+    stops with one line before a run folder exists where neither fits; a resume keeps the choice."""
+    from mcdenoise.runtime.cli import main as cli
+    from mcdenoise.training import dataset
+
+    from mcdenoise.training.specs import load_spec
+    from mcdenoise.training.train import _datasets
+
+    train("wskpn-3", tiny_dataset, tmp_path / "roomy", steps=1, **KW)
+    config = json.loads((tmp_path / "roomy" / runs.CONFIG_FILE).read_text())
+    assert config["cache_dtype"] == "float32"
+    need = sum(d.cache_bytes("float32") for d in _datasets(config, load_spec("wskpn-3"), "float32") if d is not None)
+    monkeypatch.setattr(dataset, "available_memory", lambda: int(need))     # 3/4 of it: float16 fits
+    run = tmp_path / "tight"
+    train("wskpn-3", tiny_dataset, run, steps=1, **KW)
+    assert json.loads((run / runs.CONFIG_FILE).read_text())["cache_dtype"] == "float16"
+    assert "float16" in capsys.readouterr().err
+    monkeypatch.setattr(dataset, "available_memory", lambda: 10**12)
+    train("wskpn-3", tiny_dataset, run, steps=2, resume=True, **KW)     # the run's own choice, not auto's
+    assert json.loads((run / runs.CONFIG_FILE).read_text())["cache_dtype"] == "float16"
+    monkeypatch.setattr(dataset, "available_memory", lambda: int(need) // 4)
+    rc = cli(["train", "wskpn-3", "--data", str(tiny_dataset), "--out", str(tmp_path / "none"), "--steps", "1"])
+    assert rc == 2 and "--max-sequences" in capsys.readouterr().err and not (tmp_path / "none").exists()
+
+
 def test_cosine_learning_rate_decays_over_the_steps(tiny_dataset, tmp_path):
     from mcdenoise.training.train import learning_rate
 

@@ -175,12 +175,18 @@ class SequenceDataset:
         part its items read: a quarter of a 256x256 frame at crop 128. A per-sample model's
         validation set cached whole frames (52 MB each at 8 spp) and, beside its training set,
         ran a 12 GB process out of memory. :meth:`make_item`'s coordinates are then in the crop.
+      cache_dtype: "float32" (exact) or "float16": the cached per-sample array in half precision,
+        half the memory (a pixel model's 14 columns x 8 spp: 29 MB a 256x256 frame in float32).
+        Values are rounded to 11 significant bits and finite ones beyond +-65504 clipped (NaN and
+        Inf kept); items are float32 either way. See :func:`cache_dtype_for`.
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
                  samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=(), fireflies=0.0,
-                 centre_only=False):
+                 centre_only=False, cache_dtype="float32"):
+        if cache_dtype not in CACHE_DTYPES:
+            raise ValueError(f"cache_dtype must be one of {CACHE_DTYPES}, got {cache_dtype!r}")
         if centre_only and augment:
             raise ValueError("centre_only caches centre crops: it needs augment=False")
         self.seqs = split(discover(root), part, val_fraction)
@@ -218,6 +224,7 @@ class SequenceDataset:
         self.fireflies = float(fireflies)
         #: the side of the centre crop the cache keeps (None: whole frames)
         self._keep = self.crop if centre_only else None
+        self.cache_dtype = cache_dtype
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -231,8 +238,19 @@ class SequenceDataset:
     def _frame(self, path: str) -> Frame:
         fr = self._cache.get(path)
         if fr is None:
-            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns, self._keep)
+            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns, self._keep,
+                                                     self.cache_dtype)
         return fr
+
+    def cache_bytes(self, cache_dtype: str | None = None) -> int:
+        """Bytes the cache holds once every frame of the split is read (with ``cache_dtype``,
+        default the set's own), estimated from the first frame's (read, not cached) and the
+        frame count: sequences of one data set share size and spp."""
+        dtype = cache_dtype or self.cache_dtype
+        fr = _read_for_cache(self.seqs[0].frames[0], None if self.samples else self._columns, self._keep, dtype)
+        per = fr.samples.nbytes + sum(a.nbytes for layer in PIXEL_LAYERS
+                                      if (a := getattr(fr, layer.name, None)) is not None)
+        return per * sum(len(s.frames) for s in self.seqs)
 
     def warm(self, processes: int = 1) -> int:
         """Read every frame of the split into the cache, with that many reading processes;
@@ -250,7 +268,7 @@ class SequenceDataset:
             ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
             with ProcessPoolExecutor(min(processes, len(todo)), mp_context=ctx) as pool:
                 for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * len(todo),
-                                                   [self._keep] * len(todo))):
+                                                   [self._keep] * len(todo), [self.cache_dtype] * len(todo))):
                     self._cache[path] = fr
         for path in todo:
             self._frame(path)
@@ -301,7 +319,7 @@ class SequenceDataset:
             if fr.size != (h, w):
                 raise FrameError(f"{fr.path}: size {fr.size} differs from {seq.frames[t0]} {(h, w)}")
             idx = np.sort(rng.choice(fr.spp, size=n, replace=False)) if rng is not None else np.arange(n)
-            sub = fr.samples[idx, y0:y0 + c, x0:x0 + c]     # a copy (index array)
+            sub = fr.samples[idx, y0:y0 + c, x0:x0 + c].astype(np.float32, copy=False)     # a copy (index array)
             if not self.samples:    # the cached columns back in the frame format's layout
                 full = np.zeros(sub.shape[:-1] + (len(SAMPLE_FEATURES),), np.float32)
                 for first, stop, at in self._runs:
@@ -335,10 +353,12 @@ class SequenceDataset:
         return item
 
 
-def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = None) -> Frame:
+def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = None,
+                    cache_dtype: str = "float32") -> Frame:
     """Frame ``path`` as a data set caches it: whole for a per-sample model (``columns``
     None), else only the per-sample ``columns`` a pixel model's items are made from; with
-    ``keep``, only the centre crop of that side (clamped to the frame) a validation item reads."""
+    ``keep``, only the centre crop of that side (clamped to the frame) a validation item reads;
+    the per-sample array in ``cache_dtype`` (see :class:`SequenceDataset`)."""
     fr = read_frame(path, require=("color", "reference", "motion", "samples"))
     if keep is not None:
         h, w = fr.size
@@ -354,7 +374,49 @@ def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = Non
         # of the frame: wskpn-6e's 448 frames at 256x256 x 8 spp took 15 GB).
         fr.samples = np.ascontiguousarray(fr.samples[..., columns])
         fr.albedo = fr.normal = fr.depth = fr.position = fr.emissive = None
+    if cache_dtype == "float16":
+        fr.samples = to_half(fr.samples)
     return fr
+
+
+#: the per-sample cache's precisions (SequenceDataset cache_dtype)
+CACHE_DTYPES = ("float32", "float16")
+_HALF_MAX = float(np.finfo(np.float16).max)
+
+
+def to_half(arr: np.ndarray) -> np.ndarray:
+    """``arr`` in float16: finite values beyond +-65504 clipped there (a plain cast makes them
+    Inf, which the sanitiser would then zero), NaN and Inf kept as they are."""
+    out = np.clip(arr, -_HALF_MAX, _HALF_MAX).astype(np.float16)
+    bad = ~np.isfinite(arr)
+    out[bad] = arr[bad]
+    return out
+
+
+def cache_dtype_for(need_float32: int, need_float16: int, available: int | None, fraction: float = 0.75) -> str:
+    """The cache precision ``train --cache-dtype auto`` picks: float32 when ``need_float32``
+    bytes fit in ``fraction`` of ``available``, else float16 when ``need_float16`` does (or
+    float32 when the available memory is unknown); a :class:`MemoryError` naming the sizes and
+    the ways out when neither does (a run killed by the kernel part-way loses its sitting)."""
+    if available is None or need_float32 <= fraction * available:
+        return "float32"
+    if need_float16 <= fraction * available:
+        return "float16"
+    raise MemoryError(f"the training frames need {need_float16 / 2**30:.1f} GB even with a float16 cache, "
+                      f"{fraction:.0%} of the {available / 2**30:.1f} GB available is the limit: train on fewer "
+                      f"sequences (--max-sequences N) or on a machine with more memory")
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux's MemAvailable), None elsewhere."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
 
 
 def collate(items: list[dict]):

@@ -42,6 +42,7 @@ import numpy as np
 from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
 from mcdenoise.runtime.contract import OUTPUT
 from mcdenoise.runtime.inputs import exposure_scale, sample_channels
+from mcdenoise.training.dataset import CACHE_DTYPES, SequenceDataset
 from mcdenoise.training.metrics import psnr, relmse, smape
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.transfer import gamma
@@ -179,6 +180,11 @@ def add_arguments(p):
                    help="firefly augmentation: mean outlier samples per pixel per training frame, at "
                         "50-1000x the crop's reference mean, the reference unchanged (training.dataset; "
                         "the stress test's 1e-3 is a good start; default 0: none)")
+    p.add_argument("--cache-dtype", choices=("auto",) + CACHE_DTYPES, default="auto",
+                   help="precision of the training frames' samples held in memory: float32 (exact), float16 "
+                        "(half the memory; rounded to 11 significant bits); auto (default): float32 when it "
+                        "fits in 3/4 of the available memory, else float16, else a clear error. The run "
+                        "records the choice and a resumed run keeps it")
     p.add_argument("--max-sequences", type=int, default=None,
                    help="train on the first N sequences of the training split (by scene seed; nested subsets "
                         "for learning curves)")
@@ -318,7 +324,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
-          ema: float | None = None, loader_workers: int = 0) -> dict:
+          ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto") -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -343,6 +349,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--fireflies must be a mean count per pixel in [0, 1), got {fireflies}")
     if loader_workers < 0:
         raise ValueError(f"--loader-workers must be >= 0, got {loader_workers}")
+    if cache_dtype not in ("auto",) + CACHE_DTYPES:
+        raise ValueError(f"--cache-dtype must be auto or one of {CACHE_DTYPES}, got {cache_dtype!r}")
     if device not in ("cpu", "cuda"):
         raise ValueError(f"--device must be cpu or cuda, got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
@@ -351,7 +359,6 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if device == "cuda" and world > 1:
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", rank)))
 
-    from mcdenoise.training.dataset import SequenceDataset
     from mcdenoise.training.specs import build_model, load_spec
 
     if threads:
@@ -399,6 +406,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         _check_schedule(config)     # before the run folder exists
+        config["cache_dtype"] = cache_dtype if cache_dtype != "auto" else _auto_cache_dtype(config, spec, rank, world)
         if rank == 0:
             runs.init_run(run, spec_path, config)
     config.setdefault("temporal_weight", 0.0)     # run folders from before the temporal term
@@ -417,19 +425,9 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if device == "cuda" and world > 1:
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
-    layers = tuple(spec.inputs.layers)
     groups = tuple(g for g, _ in spec.inputs.sample_groups)
-    train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
-                                spp_choices=config["spp"], window=config["window"],
-                                seed=config["seed"], val_fraction=config["val_fraction"],
-                                max_sequences=config.get("max_sequences"), sample_groups=groups,
-                                fireflies=config.get("fireflies", 0.0))
-    val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
-                              spp_choices=config["spp"], window=config["window"], augment=False,
-                              val_fraction=config["val_fraction"], sample_groups=groups, centre_only=True)
-    test_set = None if not config.get("test_data") else SequenceDataset(
-        config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
-        window=config["window"], augment=False, sample_groups=groups, centre_only=True)
+    # run folders from before --cache-dtype cached float32
+    train_set, val_set, test_set = _datasets(config, spec, config.get("cache_dtype", "float32"))
     val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"], "device": device}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
@@ -580,6 +578,48 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
     return ckpt
 
 
+def _datasets(config: dict, spec, cache_dtype: str):
+    """The run's (training, validation, test or None) sets, from its config."""
+    layers = tuple(spec.inputs.layers)
+    groups = tuple(g for g, _ in spec.inputs.sample_groups)
+    train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
+                                spp_choices=config["spp"], window=config["window"],
+                                seed=config["seed"], val_fraction=config["val_fraction"],
+                                max_sequences=config.get("max_sequences"), sample_groups=groups,
+                                fireflies=config.get("fireflies", 0.0), cache_dtype=cache_dtype)
+    val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
+                              spp_choices=config["spp"], window=config["window"], augment=False,
+                              val_fraction=config["val_fraction"], sample_groups=groups, centre_only=True,
+                              cache_dtype=cache_dtype)
+    test_set = None if not config.get("test_data") else SequenceDataset(
+        config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
+        window=config["window"], augment=False, sample_groups=groups, centre_only=True, cache_dtype=cache_dtype)
+    return train_set, val_set, test_set
+
+
+def _auto_cache_dtype(config: dict, spec, rank: int, world: int) -> str:
+    """``--cache-dtype auto`` for a new run (:func:`training.dataset.cache_dtype_for`): every
+    process on this machine caches its own sets, so the need is counted once per local process.
+    Rank 0 decides and tells the others, so all train on the same data."""
+    from mcdenoise.training.dataset import available_memory, cache_dtype_for
+
+    choice = [None]
+    if rank == 0:
+        sets = [d for d in _datasets(config, spec, "float32") if d is not None]
+        local = int(os.environ.get("LOCAL_WORLD_SIZE", world))
+        need = {dt: local * sum(d.cache_bytes(dt) for d in sets) for dt in CACHE_DTYPES}
+        choice[0] = cache_dtype_for(need["float32"], need["float16"], available_memory())
+        if choice[0] != "float32":
+            print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than 3/4 of the "
+                  f"{available_memory() / 2**30:.1f} GB available: caching their samples in float16 "
+                  f"({need[choice[0]] / 2**30:.1f} GB; --cache-dtype)", file=sys.stderr)
+    if world > 1:
+        import torch.distributed as dist
+
+        dist.broadcast_object_list(choice, src=0)
+    return choice[0]
+
+
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
               batch_size: int = 1, window: int = 1, device: str = "cpu", live=None) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
@@ -607,6 +647,6 @@ def main(args) -> int:
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
                 lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
-                loader_workers=args.loader_workers)
+                loader_workers=args.loader_workers, cache_dtype=args.cache_dtype)
     print(json.dumps(row, indent=2))
     return 0
