@@ -434,3 +434,20 @@ def test_training_gradients_stay_finite_where_the_weights_span_their_whole_range
         assert torch.isfinite(p.grad).all() == training
     assert out[True].dtype == torch.float32
     torch.testing.assert_close(out[True], out[False], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("k", [3, 5, 13])
+def test_trainings_separable_window_mean_is_the_exported_pool(k):
+    """Training's float64 fusion takes its window means as a 1×k and a k×1 pass (2k reads, not
+    k²); they are the one k×k zero-padded pool the float32 export runs, to float64 rounding,
+    at the borders too, on a non-square frame with values spanning the fusion's range."""
+    import torch.nn.functional as F
+
+    from mcdenoise.training.models.wskpn import _window_mean
+
+    g = torch.Generator().manual_seed(k)
+    x = torch.rand(2, 3, 21, 34, generator=g, dtype=torch.float64) * torch.exp(
+        20 * torch.randn(2, 3, 21, 34, generator=g, dtype=torch.float64))
+    want = F.avg_pool2d(x, k, stride=1, padding=k // 2, count_include_pad=True)
+    torch.testing.assert_close(_window_mean(x, k), want, rtol=1e-13, atol=0)
+    torch.testing.assert_close(_window_mean(x.float(), k), want.float(), rtol=1e-6, atol=0)
