@@ -277,6 +277,23 @@ def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resum
     assert rc == 2 and "--max-sequences" in capsys.readouterr().err and not (tmp_path / "none").exists()
 
 
+@pytest.mark.parametrize("spec", ["wskpn-3", "nbg-2l-1g", "anf-s", "ndle-s"])
+def test_bfloat16_autocast_trains_every_family_close_to_float32(tiny_dataset, tmp_path, spec):
+    kw = dict(KW, window=2)     # the tiny sequences are 3 frames; anf-s trains on 8
+    """--autocast bf16: after one step, validation (float32) within 0.5 dB of the float32 run's,
+    then finite weights after a second, resumed step; recorded, kept on resume."""
+    a, b = tmp_path / "fp32", tmp_path / "bf16"
+    ra = train(spec, tiny_dataset, a, steps=1, **kw)
+    rb = train(spec, tiny_dataset, b, steps=1, autocast="bf16", **kw)
+    assert json.loads((b / runs.CONFIG_FILE).read_text())["autocast"] == "bf16"
+    assert ra["val_psnr"] != rb["val_psnr"] and abs(ra["val_psnr"] - rb["val_psnr"]) < 0.5, (ra["val_psnr"], rb["val_psnr"])
+    train(spec, tiny_dataset, b, steps=2, resume=True, **kw)
+    ckpt = torch.load(b / runs.CHECKPOINT_FILE, weights_only=False)
+    assert ckpt["step"] == 2 and all(torch.isfinite(v).all() for v in ckpt["model"].values() if v.is_floating_point())
+    with pytest.raises(ValueError, match="keeps its arithmetic"):
+        train(spec, tiny_dataset, a, steps=2, resume=True, autocast="bf16", **kw)
+
+
 def test_cosine_learning_rate_decays_over_the_steps(tiny_dataset, tmp_path):
     from mcdenoise.training.train import learning_rate
 

@@ -180,6 +180,11 @@ def add_arguments(p):
                    help="firefly augmentation: mean outlier samples per pixel per training frame, at "
                         "50-1000x the crop's reference mean, the reference unchanged (training.dataset; "
                         "the stress test's 1e-3 is a good start; default 0: none)")
+    p.add_argument("--autocast", choices=("bf16",), default=None,
+                   help="bf16: run the model's convolutions and matrix products in bfloat16 (torch.autocast; "
+                        "faster on GPUs and on CPUs with AMX: docs/results/scale/step_time.txt); the loss, "
+                        "WSKPN's kernel fusion and every validation stay float32. Default off; a resumed run "
+                        "keeps the run's choice")
     p.add_argument("--cache-dtype", choices=("auto",) + CACHE_DTYPES, default="auto",
                    help="precision of the training frames' samples held in memory: float32 (exact), float16 "
                         "(half the memory; rounded to 11 significant bits); auto (default): float32 when it "
@@ -324,7 +329,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           spp: list[int] | None = None, temporal_weight: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
-          ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto") -> dict:
+          ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto",
+          autocast: str | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -349,6 +355,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError(f"--fireflies must be a mean count per pixel in [0, 1), got {fireflies}")
     if loader_workers < 0:
         raise ValueError(f"--loader-workers must be >= 0, got {loader_workers}")
+    if autocast not in (None, "bf16"):
+        raise ValueError(f"--autocast must be bf16 or not given, got {autocast!r}")
     if cache_dtype not in ("auto",) + CACHE_DTYPES:
         raise ValueError(f"--cache-dtype must be auto or one of {CACHE_DTYPES}, got {cache_dtype!r}")
     if device not in ("cpu", "cuda"):
@@ -385,6 +393,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             raise ValueError(f"{run}: trained with --lr {config['lr']}; a resumed run keeps its rate")
         if ema is not None and ema != config.get("ema"):
             raise ValueError(f"{run}: trained with --ema {config.get('ema')}; a resumed run keeps its average")
+        if autocast is not None and autocast != config.get("autocast"):
+            raise ValueError(f"{run}: trained with --autocast {config.get('autocast')}; a resumed run keeps its arithmetic")
     else:
         if (run / runs.CHECKPOINT_FILE).exists():
             raise FileExistsError(f"{run}: already holds a run; use --resume or another --out")
@@ -398,7 +408,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "lr": tr.lr if lr is None else lr, "loss": tr.loss, "spp": list(spp or tr.spp), "window": window or tr.window,
             "temporal_weight": tr.temporal_weight if temporal_weight is None else temporal_weight,
             "regularizer_weight": tr.regularizer_weight, "lr_schedule": lr_schedule or "constant",
-            "ema": ema, "val_fraction": val_fraction, "val_every": val_every,
+            "ema": ema, "autocast": autocast, "val_fraction": val_fraction, "val_every": val_every,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "fireflies": fireflies, "test_data": os.path.abspath(test_data) if test_data else None,
             "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
@@ -512,10 +522,11 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             if step >= config["steps"]:
                 break
             batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
-            outs = run_window(model, batch, protocol, forward=forward)
-            loss = window_loss(loss_fn, [o[OUTPUT] for o in outs], batch["reference"], config["temporal_weight"])
+            with torch.autocast(device_type=device, dtype=torch.bfloat16, enabled=config.get("autocast") == "bf16"):
+                outs = run_window(model, batch, protocol, forward=forward)
+            loss = window_loss(loss_fn, [o[OUTPUT].float() for o in outs], batch["reference"], config["temporal_weight"])
             if config.get("regularizer_weight") and REGULARIZER in outs[0]:
-                loss = loss + config["regularizer_weight"] * sum(o[REGULARIZER] for o in outs) / len(outs)
+                loss = loss + config["regularizer_weight"] * sum(o[REGULARIZER].float() for o in outs) / len(outs)
             # The global batch's loss (the mean of the processes' equal shares) and whether the
             # first process's clock says stop: every process takes the same decisions.
             elapsed = time.perf_counter() - t_start
@@ -654,6 +665,6 @@ def main(args) -> int:
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
                 lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
-                loader_workers=args.loader_workers, cache_dtype=args.cache_dtype)
+                loader_workers=args.loader_workers, cache_dtype=args.cache_dtype, autocast=args.autocast)
     print(json.dumps(row, indent=2))
     return 0
