@@ -264,7 +264,7 @@ def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resum
     config = json.loads((tmp_path / "roomy" / runs.CONFIG_FILE).read_text())
     assert config["cache_dtype"] == "float32"
     need = sum(d.cache_bytes("float32") for d in _datasets(config, load_spec("wskpn-3"), "float32") if d is not None)
-    monkeypatch.setattr(dataset, "available_memory", lambda: int(need))     # 3/4 of it: float16 fits
+    monkeypatch.setattr(dataset, "available_memory", lambda: int(need))     # 85% of it: float16 fits
     run = tmp_path / "tight"
     train("wskpn-3", tiny_dataset, run, steps=1, **KW)
     assert json.loads((run / runs.CONFIG_FILE).read_text())["cache_dtype"] == "float16"

@@ -381,6 +381,9 @@ def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = Non
 
 #: the per-sample cache's precisions (SequenceDataset cache_dtype)
 CACHE_DTYPES = ("float32", "float16")
+#: The share of the available memory a run's cached frames may take (cache_dtype_for): the rest
+#: is the trainer's own (torch, the model, a batch's activations: 1-2 GB for wskpn-6e here).
+CACHE_MEMORY_FRACTION = 0.85
 _HALF_MAX = float(np.finfo(np.float16).max)
 
 
@@ -393,7 +396,7 @@ def to_half(arr: np.ndarray) -> np.ndarray:
     return out
 
 
-def cache_dtype_for(need_float32: int, need_float16: int, available: int | None, fraction: float = 0.75) -> str:
+def cache_dtype_for(need_float32: int, need_float16: int, available: int | None, fraction: float = CACHE_MEMORY_FRACTION) -> str:
     """The cache precision ``train --cache-dtype auto`` picks: float32 when ``need_float32``
     bytes fit in ``fraction`` of ``available``, else float16 when ``need_float16`` does (or
     float32 when the available memory is unknown); a :class:`MemoryError` naming the sizes and

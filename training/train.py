@@ -188,7 +188,7 @@ def add_arguments(p):
     p.add_argument("--cache-dtype", choices=("auto",) + CACHE_DTYPES, default="auto",
                    help="precision of the training frames' samples held in memory: float32 (exact), float16 "
                         "(half the memory; rounded to 11 significant bits); auto (default): float32 when it "
-                        "fits in 3/4 of the available memory, else float16, else a clear error. The run "
+                        "fits in 85%% of the available memory, else float16, else a clear error. The run "
                         "records the choice and a resumed run keeps it")
     p.add_argument("--max-sequences", type=int, default=None,
                    help="train on the first N sequences of the training split (by scene seed; nested subsets "
@@ -628,7 +628,7 @@ def _auto_cache_dtype(config: dict, spec, rank: int, world: int) -> str:
         need = {dt: local * sum(d.cache_bytes(dt) for d in sets) for dt in CACHE_DTYPES}
         choice[0] = cache_dtype_for(need["float32"], need["float16"], available_memory())
         if choice[0] != "float32":
-            print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than 3/4 of the "
+            print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than 85% of the "
                   f"{available_memory() / 2**30:.1f} GB available: caching their samples in float16 "
                   f"({need[choice[0]] / 2**30:.1f} GB; --cache-dtype)", file=sys.stderr)
     if world > 1:
