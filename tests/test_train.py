@@ -280,13 +280,17 @@ def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resum
 @pytest.mark.parametrize("spec", ["wskpn-3", "nbg-2l-1g", "anf-s", "ndle-s"])
 def test_bfloat16_autocast_trains_every_family_close_to_float32(tiny_dataset, tmp_path, spec):
     kw = dict(KW, window=2)     # the tiny sequences are 3 frames; anf-s trains on 8
-    """--autocast bf16: after one step, validation (float32) within 0.5 dB of the float32 run's,
-    then finite weights after a second, resumed step; recorded, kept on resume."""
+    """--autocast bf16: the first step's loss close to float32's but not equal, validation
+    (float32) within 0.5 dB, finite weights after a second, resumed step; recorded, kept on resume."""
     a, b = tmp_path / "fp32", tmp_path / "bf16"
     ra = train(spec, tiny_dataset, a, steps=1, **kw)
     rb = train(spec, tiny_dataset, b, steps=1, autocast="bf16", **kw)
     assert json.loads((b / runs.CONFIG_FILE).read_text())["autocast"] == "bf16"
-    assert ra["val_psnr"] != rb["val_psnr"] and abs(ra["val_psnr"] - rb["val_psnr"]) < 0.5, (ra["val_psnr"], rb["val_psnr"])
+    # the first step's loss is computed in bf16 (so it differs), close to float32's; Adam's first
+    # update is about lr·sign(g), so the weights (and validation) may even come out the same
+    la, lb = (json.loads((r / "metrics.jsonl").read_text().splitlines()[0])["train_loss"] for r in (a, b))
+    assert la != lb and abs(la - lb) < 0.05 * la, (la, lb)
+    assert abs(ra["val_psnr"] - rb["val_psnr"]) < 0.5, (ra["val_psnr"], rb["val_psnr"])
     train(spec, tiny_dataset, b, steps=2, resume=True, **kw)
     ckpt = torch.load(b / runs.CHECKPOINT_FILE, weights_only=False)
     assert ckpt["step"] == 2 and all(torch.isfinite(v).all() for v in ckpt["model"].values() if v.is_floating_point())
