@@ -42,7 +42,7 @@ import numpy as np
 from mcdenoise.runtime.args import CommandError, add_data, add_seed, add_threads
 from mcdenoise.runtime.contract import OUTPUT
 from mcdenoise.runtime.inputs import exposure_scale, sample_channels
-from mcdenoise.training.dataset import CACHE_DTYPES, SequenceDataset
+from mcdenoise.training.dataset import CACHE_DTYPES, CACHE_MEMORY_FRACTION, SequenceDataset
 from mcdenoise.training.metrics import psnr, relmse, smape
 from mcdenoise.runtime.temporal import Protocol
 from mcdenoise.runtime.transfer import gamma
@@ -182,13 +182,13 @@ def add_arguments(p):
                         "the stress test's 1e-3 is a good start; default 0: none)")
     p.add_argument("--autocast", choices=("bf16",), default=None,
                    help="bf16: run the model's convolutions and matrix products in bfloat16 (torch.autocast; "
-                        "faster on GPUs and on CPUs with AMX: docs/results/scale/step_time.txt); the loss, "
+                        "faster on GPUs and on CPUs with AMX: docs/results/scale/autocast_time.txt); the loss, "
                         "WSKPN's kernel fusion and every validation stay float32. Default off; a resumed run "
                         "keeps the run's choice")
     p.add_argument("--cache-dtype", choices=("auto",) + CACHE_DTYPES, default="auto",
                    help="precision of the training frames' samples held in memory: float32 (exact), float16 "
                         "(half the memory; rounded to 11 significant bits); auto (default): float32 when it "
-                        "fits in 85%% of the available memory, else float16, else a clear error. The run "
+                        f"fits in {CACHE_MEMORY_FRACTION * 100:.0f}%% of the available memory, else float16, else a clear error. The run "
                         "records the choice and a resumed run keeps it")
     p.add_argument("--max-sequences", type=int, default=None,
                    help="train on the first N sequences of the training split (by scene seed; nested subsets "
@@ -626,10 +626,11 @@ def _auto_cache_dtype(config: dict, spec, rank: int, world: int) -> str:
         sets = [d for d in _datasets(config, spec, "float32") if d is not None]
         local = int(os.environ.get("LOCAL_WORLD_SIZE", world))
         need = {dt: local * sum(d.cache_bytes(dt) for d in sets) for dt in CACHE_DTYPES}
-        choice[0] = cache_dtype_for(need["float32"], need["float16"], available_memory())
+        available = available_memory()
+        choice[0] = cache_dtype_for(need["float32"], need["float16"], available)
         if choice[0] != "float32":
-            print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than 85% of the "
-                  f"{available_memory() / 2**30:.1f} GB available: caching their samples in float16 "
+            print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than {CACHE_MEMORY_FRACTION:.0%} of the "
+                  f"{available / 2**30:.1f} GB available: caching their samples in float16 "
                   f"({need[choice[0]] / 2**30:.1f} GB; --cache-dtype)", file=sys.stderr)
     if world > 1:
         import torch.distributed as dist
