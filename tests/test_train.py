@@ -9,6 +9,7 @@ import torch
 from mcdenoise.export.onnx_export import export_run
 from mcdenoise.runtime.cli import main
 from mcdenoise.runtime.denoiser import Denoiser
+from mcdenoise.runtime.frames import FrameError
 from mcdenoise.training import runs
 from mcdenoise.training.train import train
 
@@ -33,6 +34,24 @@ def test_resume_continues_exactly(tiny_dataset, tmp_path):
 
     fresh = build_model(load_spec("wskpn-3")).state_dict()
     assert any(not torch.equal(fresh[k], a[k]) for k in a if a[k].dtype.is_floating_point)
+
+
+def test_resuming_a_finished_run_returns_its_score_without_reading_data(tiny_dataset, tmp_path, capsys):
+    # Scripts resume every arm of an A/B; an arm already at its steps must not re-read its frames
+    # (minutes for per-sample data) or train further, and must say so.
+    run = tmp_path / "done"
+    final = train("wskpn-3", tiny_dataset, run, steps=2, **KW)
+    before = (run / runs.CHECKPOINT_FILE).read_bytes(), (run / runs.METRICS_FILE).read_text()
+    cfg = json.loads((run / runs.CONFIG_FILE).read_text())
+    cfg["data"] = str(tmp_path / "gone")        # reading any frame would now fail
+    (run / runs.CONFIG_FILE).write_text(json.dumps(cfg))
+    capsys.readouterr()
+    assert train("wskpn-3", tiny_dataset, run, steps=2, resume=True, **KW) == final
+    assert "already at step 2 of 2" in capsys.readouterr().out
+    assert ((run / runs.CHECKPOINT_FILE).read_bytes(), (run / runs.METRICS_FILE).read_text()) == before
+    # more steps than it has: it trains on, and so needs its data
+    with pytest.raises(FrameError, match="does not exist"):
+        train("wskpn-3", tiny_dataset, run, steps=3, resume=True, **KW)
 
 
 def test_loader_workers_build_the_same_batches(tiny_dataset, tmp_path):

@@ -395,6 +395,13 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             raise ValueError(f"{run}: trained with --ema {config.get('ema')}; a resumed run keeps its average")
         if autocast is not None and autocast != config.get("autocast"):
             raise ValueError(f"{run}: trained with --autocast {config.get('autocast')}; a resumed run keeps its arithmetic")
+        # A run that already reached its steps and scored them returns that score, before reading
+        # any frame: resuming a finished arm (scripts that resume every arm) costs nothing.
+        rows = runs.read_metrics(run)
+        if rows and rows[-1].get("final") and rows[-1].get("step", -1) >= config["steps"]:
+            if rank == 0:
+                print(f"{run}: already at step {rows[-1]['step']} of {config['steps']}, scored; nothing to do")
+            return rows[-1]
     else:
         if (run / runs.CHECKPOINT_FILE).exists():
             raise FileExistsError(f"{run}: already holds a run; use --resume or another --out")
