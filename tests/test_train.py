@@ -137,6 +137,31 @@ def test_window_loss_adds_the_temporal_term_on_frame_differences():
     assert torch.allclose(d_flicker, want)
 
 
+def test_the_coarse_term_charges_a_loss_of_energy_not_zero_mean_noise(tiny_dataset, tmp_path):
+    # A frame 10% too dark everywhere and one off by +-10% in a checkerboard pay about the same
+    # per-pixel SMAPE; only the darkening survives in the 8x8 block means.
+    from mcdenoise.training.train import COARSE_BLOCK, LOSSES, coarse, window_loss
+
+    smape = LOSSES["smape"]
+    refs = torch.rand(2, 2, 3, 2, 2).repeat_interleave(COARSE_BLOCK, 3).repeat_interleave(COARSE_BLOCK, 4) + 0.1
+    sign = (torch.arange(2 * COARSE_BLOCK)[:, None] + torch.arange(2 * COARSE_BLOCK)[None]) % 2 * 2 - 1
+    checker = [refs[:, t] * (1 + 0.1 * sign) for t in range(2)]
+    dark = [refs[:, t] * 0.9 for t in range(2)]
+    assert torch.allclose(window_loss(smape, checker, refs), window_loss(smape, dark, refs), rtol=0.06)
+    d_checker = window_loss(smape, checker, refs, coarse_weight=0.5) - window_loss(smape, checker, refs)
+    d_dark = window_loss(smape, dark, refs, coarse_weight=0.5) - window_loss(smape, dark, refs)
+    assert abs(float(d_checker)) < 1e-6 and float(d_dark) > 0.02
+    want = 0.5 * sum(smape(coarse(o), coarse(refs[:, t])) for t, o in enumerate(dark)) / 2
+    assert torch.allclose(d_dark, want)
+    # the run records its weight; a resume keeps it and refuses another
+    train("wskpn-3", tiny_dataset, tmp_path / "c", steps=1, coarse_weight=0.5, **KW)
+    assert json.loads((tmp_path / "c" / runs.CONFIG_FILE).read_text())["coarse_weight"] == 0.5
+    with pytest.raises(ValueError, match="coarse-weight 0.5"):
+        train("wskpn-3", tiny_dataset, tmp_path / "c", steps=2, resume=True, coarse_weight=0.0, **KW)
+    with pytest.raises(ValueError, match="--coarse-weight must be >= 0"):
+        train("wskpn-3", tiny_dataset, tmp_path / "d", steps=1, coarse_weight=-1.0, **KW)
+
+
 def test_window_spp_and_temporal_weight_reach_the_run(tiny_dataset, tmp_path, capsys):
     run = tmp_path / "r"
     train("wskpn-3", tiny_dataset, run, steps=1, window=3, spp=[1, 2, 4], temporal_weight=0.25, fireflies=1e-3, **KW)
