@@ -8,7 +8,8 @@
 # (several specs train one after another on the same rendered shard, MINUTES each; SEED=N picks
 # the shard's seed, default 10, a new one each session of a chain; FIREFLIES=D trains with the
 # outlier augmentation; EMA=DECAY keeps the weights' moving average (train --ema); AUTOCAST=bf16
-# runs the convolutions in bfloat16 (train --autocast; not yet A/B-tested for quality); with one
+# runs the convolutions in bfloat16 (train --autocast; not yet A/B-tested for quality); COARSE=W adds
+# the loss of 8x8 block means (train --coarse-weight; docs/results/coarse); with one
 # spec, INIT=RUN_FOLDER starts it from that run's weights, e.g. the last committed sitting of
 # docs/results/scale, so a GPU session continues the CPU sittings' chain; LOADER_WORKERS=N
 # processes build the batches, default 12 of the 16 cores: one core needs 0.88 s for a batch
@@ -47,7 +48,7 @@ for one in ${spec//,/ }; do
   mcd train "$one" --data /tmp/data --out "$OUT/run-$one" --device "$device" --minutes "$minutes" --steps 1000000 \
     --spp 1 2 4 8 --window "$window" --temporal-weight 0.25 --batch-size 16 --crop 128 --val-every 200 --quiet \
     --loader-workers "${LOADER_WORKERS:-12}" \
-    ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} ${AUTOCAST:+--autocast "$AUTOCAST"} \
+    ${INIT:+--init "$INIT"} --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} ${AUTOCAST:+--autocast "$AUTOCAST"} ${COARSE:+--coarse-weight "$COARSE"} \
     2> "$OUT/train-$one.log" || echo "train $one failed" | tee -a "$OUT/times.txt"
   echo "train $one: $(( $(date +%s) - start )) s" | tee -a "$OUT/times.txt"
   tail -n 3 "$OUT/train-$one.log"
