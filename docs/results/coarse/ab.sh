@@ -5,7 +5,7 @@
 # is at scales of 8 pixels and more. Two fine-tunes of one run, the same data, seed and steps (the
 # scale sittings' recipe: spp 1-8, 8-frame windows, temporal term 0.25, fireflies 0.001, a 3e-4
 # cosine), without and with the coarse term; each scored on curves-test (sequences, after 2 warm-up
-# frames) and by the error probe on the two hand-made scenes (brightness, error by scale).
+# frames) and by the error probe on the two hand-made scenes and long-slow (brightness, error by scale).
 # Usage (after a scale sitting rendered data/train-256; nothing else running):
 #   bash docs/results/coarse/ab.sh INIT STEPS WEIGHT [SEQUENCES]
 #   INIT: the run both arms start from; SEQUENCES: --max-sequences (default 60: reading every
@@ -35,7 +35,7 @@ for w in 0 "$weight"; do
   done
 done
 : > "$out/probe.txt"
-for set in heldout-lamp_occluder heldout-room_window; do
+for set in heldout-lamp_occluder heldout-room_window long-slow; do
   for spp in 1 4; do
     cmd="python docs/results/long/error_probe.py noisy /tmp/cw0.onnx /tmp/cw$weight.onnx oidn-high --data data/$set --spp $spp --warmup 8"
     echo "\$ $cmd" >> "$out/probe.txt"
