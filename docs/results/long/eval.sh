@@ -18,7 +18,7 @@ cd "$(dirname "$0")/../../.."
 out=docs/results/long
 sets=("$@")
 [ ${#sets[@]} -gt 0 ] || sets=(long-slow long-medium long-fast heldout-room_window heldout-lamp_occluder)
-read -r -a runs <<< "${RUNS-docs/results/scale/wskpn-6e-clamp-1 docs/results/scale/wskpn-6e-2 docs/results/scale/wskpn-6e-3 docs/results/scale/wskpn-6e-5}"
+read -r -a runs <<< "${RUNS-docs/results/scale/wskpn-6e-clamp-1 docs/results/scale/wskpn-6e-2 docs/results/scale/wskpn-6e-3 docs/results/scale/wskpn-6e-5 docs/results/scale/wskpn-6e-6}"
 for r in "${runs[@]}"; do
   [ -f "/tmp/$(basename "$r").onnx" ] || mcdenoise export "$r" --out "/tmp/$(basename "$r").onnx"
 done
