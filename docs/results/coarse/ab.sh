@@ -34,12 +34,12 @@ for w in 0 "$weight"; do
       --json "$out/cw$w/curves-test-${spp}spp.json"
   done
 done
-: > "$out/probe.txt"
+: > "$out/probe-cw$weight.txt"
 for set in heldout-lamp_occluder heldout-room_window long-slow; do
   for spp in 1 4; do
     cmd="python docs/results/long/error_probe.py noisy /tmp/cw0.onnx /tmp/cw$weight.onnx oidn-high --data data/$set --spp $spp --warmup 8"
-    echo "\$ $cmd" >> "$out/probe.txt"
-    $cmd --threads "$(nproc)" >> "$out/probe.txt"
-    echo >> "$out/probe.txt"
+    echo "\$ $cmd" >> "$out/probe-cw$weight.txt"
+    $cmd --threads "$(nproc)" >> "$out/probe-cw$weight.txt"
+    echo >> "$out/probe-cw$weight.txt"
   done
 done
