@@ -108,6 +108,52 @@ def test_a_float16_cache_halves_the_samples_and_rounds_items_only(tiny_dataset, 
         SequenceDataset(tiny_dataset, "all", LAYERS, cache_dtype="float64")
 
 
+@pytest.mark.parametrize("groups", [(), ("radiance", "normal")])
+def test_a_disk_cache_gives_the_same_items_and_spares_a_later_run_the_reading(tiny_dataset, tmp_path, monkeypatch,
+                                                                              groups):
+    """cache_dir: items (training crops with fireflies, validation centre crops, float32 and
+    float16) equal the in-memory cache's byte for byte, warmed by processes or read lazily;
+    the arrays are read-only memory maps (an item that wrote into a cached frame would fail);
+    a second data set on the same folder decodes no EXR; a re-rendered frame gets a new entry."""
+    import mcdenoise.training.dataset as dataset
+
+    cache = tmp_path / "cache"
+    for augment, dtype in ((True, "float32"), (False, "float16")):
+        kw = dict(crop=32, window=2, augment=augment, sample_groups=groups, cache_dtype=dtype,
+                  fireflies=0.01 if augment else 0.0, centre_only=not augment)
+        mem = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), **kw)
+        disk = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), cache_dir=cache, **kw)
+        lazy = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), cache_dir=cache, **kw)
+        disk.warm(processes=2)
+        f = disk.seqs[0].frames[0]
+        assert isinstance(disk._cache[f].samples, np.memmap) and not disk._cache[f].samples.flags.writeable
+        for i in range(4):
+            a, b, c = mem[i], disk[i], lazy[i]
+            for k in a:
+                np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+                np.testing.assert_array_equal(a[k], c[k], err_msg=k)
+    entries = sorted(os.listdir(cache))
+    assert entries and not any(".tmp-" in e for e in entries)
+
+    def no_reading(*a, **k):
+        raise AssertionError("an EXR was decoded although the disk cache holds the frame")
+
+    monkeypatch.setattr(dataset, "read_frame", no_reading)
+    again = SequenceDataset(tiny_dataset, "all", LAYERS + ("emissive",), crop=32, window=2, sample_groups=groups,
+                            fireflies=0.01, cache_dir=cache)
+    again.warm(processes=1)
+    assert again[0]["color"].shape == (2, 3, 32, 32)
+    monkeypatch.undo()
+    frame = again.seqs[0].frames[0]
+    key = dataset.disk_cache_key(frame, again._columns if not again.samples else None, None, "float32")
+    st = os.stat(frame)
+    os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    try:
+        assert dataset.disk_cache_key(frame, again._columns if not again.samples else None, None, "float32") != key
+    finally:
+        os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns))
+
+
 def test_to_half_clips_finite_values_and_keeps_nan_and_inf():
     a = np.array([1.0, 1e5, -1e6, np.inf, -np.inf, np.nan, 0.1], np.float32)
     h = to_half(a)

@@ -321,6 +321,34 @@ def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resum
     assert rc == 2 and "--max-sequences" in capsys.readouterr().err and not (tmp_path / "none").exists()
 
 
+def test_a_disk_cache_trains_the_same_run_and_takes_frames_beyond_the_memory(tiny_dataset, tmp_path, monkeypatch,
+                                                                              capsys):
+    """--cache-dir: the same weights and metrics as the in-memory cache, through a resume with
+    another folder; not recorded in the config; where even float16 does not fit in memory the run
+    caches float16 on disk instead of stopping (without the folder it stops, the test above)."""
+    from mcdenoise.runtime.cli import main as cli
+    from mcdenoise.training import dataset
+
+    kw = dict(KW, fireflies=0.01, val_every=1)
+    train("wskpn-3", tiny_dataset, tmp_path / "memory", steps=2, **kw)
+    train("wskpn-3", tiny_dataset, tmp_path / "disk", steps=1, cache_dir=str(tmp_path / "c1"), **kw)
+    train("wskpn-3", tiny_dataset, tmp_path / "disk", steps=2, resume=True, cache_dir=str(tmp_path / "c2"), **kw)
+    a, b = _weights(tmp_path / "memory"), _weights(tmp_path / "disk")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    rows = [[{k: v for k, v in json.loads(line).items() if k != "elapsed_s"}
+             for line in (tmp_path / r / runs.METRICS_FILE).read_text().splitlines()] for r in ("memory", "disk")]
+    assert rows[0][-1] == rows[1][-1] and rows[0][-1]["final"] and rows[0][-1]["step"] == 2   # the split run adds a final row at 1
+    assert any((tmp_path / "c1").iterdir()) and any((tmp_path / "c2").iterdir())
+    assert "cache_dir" not in json.loads((tmp_path / "disk" / runs.CONFIG_FILE).read_text())
+    monkeypatch.setattr(dataset, "available_memory", lambda: 1)
+    capsys.readouterr()
+    rc = cli(["train", "wskpn-3", "--data", str(tiny_dataset), "--out", str(tmp_path / "big"), "--steps", "1",
+              "--crop", "32", "--batch-size", "2", "--quiet", "--cache-dir", str(tmp_path / "c3")])
+    assert rc == 0 and "read from" in capsys.readouterr().err
+    assert json.loads((tmp_path / "big" / runs.CONFIG_FILE).read_text())["cache_dtype"] == "float16"
+
+
 @pytest.mark.parametrize("spec", ["wskpn-3", "nbg-2l-1g", "anf-s", "ndle-s"])
 def test_bfloat16_autocast_trains_every_family_close_to_float32(tiny_dataset, tmp_path, spec):
     kw = dict(KW, window=2)     # the tiny sequences are 3 frames; anf-s trains on 8

@@ -179,12 +179,17 @@ class SequenceDataset:
         half the memory (a pixel model's 14 columns x 8 spp: 29 MB a 256x256 frame in float32).
         Values are rounded to 11 significant bits and finite ones beyond +-65504 clipped (NaN and
         Inf kept); items are float32 either way. See :func:`cache_dtype_for`.
+      cache_dir: a folder where each frame's cached arrays are kept as .npy files and read back
+        memory-mapped (:func:`disk_cached_frame`), instead of held in this process: the page
+        cache then holds what fits in memory and the rest is read from disk, and a later run on
+        the same frames (the next sitting, the other arm of an A/B) starts without decoding a
+        single EXR. The items are the same as without it (tested).
     """
 
     def __init__(self, root, part="train", layers=("color", "albedo", "normal", "depth"),
                  crop=128, spp_choices=(1, 2, 4, 8), window=2, length=None, augment=True,
                  samples=False, seed=0, val_fraction=0.2, max_sequences=None, sample_groups=(), fireflies=0.0,
-                 centre_only=False, cache_dtype="float32"):
+                 centre_only=False, cache_dtype="float32", cache_dir=None):
         if cache_dtype not in CACHE_DTYPES:
             raise ValueError(f"cache_dtype must be one of {CACHE_DTYPES}, got {cache_dtype!r}")
         if centre_only and augment:
@@ -225,6 +230,7 @@ class SequenceDataset:
         #: the side of the centre crop the cache keeps (None: whole frames)
         self._keep = self.crop if centre_only else None
         self.cache_dtype = cache_dtype
+        self.cache_dir = None if cache_dir is None else os.fspath(cache_dir)
         self.seed = int(seed)
         self.epoch = 0
         self._cache: dict[str, Frame] = {}
@@ -238,8 +244,9 @@ class SequenceDataset:
     def _frame(self, path: str) -> Frame:
         fr = self._cache.get(path)
         if fr is None:
-            fr = self._cache[path] = _read_for_cache(path, None if self.samples else self._columns, self._keep,
-                                                     self.cache_dtype)
+            args = (path, None if self.samples else self._columns, self._keep, self.cache_dtype)
+            fr = self._cache[path] = (disk_cached_frame(*args, self.cache_dir) if self.cache_dir
+                                      else _read_for_cache(*args))
         return fr
 
     def cache_bytes(self, cache_dtype: str | None = None) -> int:
@@ -267,9 +274,16 @@ class SequenceDataset:
             # fork, as the loader's workers: the readers need nothing the parent has not imported
             ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
             with ProcessPoolExecutor(min(processes, len(todo)), mp_context=ctx) as pool:
-                for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * len(todo),
-                                                   [self._keep] * len(todo), [self.cache_dtype] * len(todo))):
-                    self._cache[path] = fr
+                n = len(todo)
+                if self.cache_dir:
+                    # the readers write the files; this process maps them (a returned array
+                    # would be pickled into this process's memory, which the disk cache avoids)
+                    list(pool.map(_write_disk_cache, todo, [columns] * n, [self._keep] * n,
+                                  [self.cache_dtype] * n, [self.cache_dir] * n))
+                else:
+                    for path, fr in zip(todo, pool.map(_read_for_cache, todo, [columns] * n,
+                                                       [self._keep] * n, [self.cache_dtype] * n)):
+                        self._cache[path] = fr
         for path in todo:
             self._frame(path)
         return sum(len(s.frames) for s in self.seqs)
@@ -377,6 +391,65 @@ def _read_for_cache(path: str, columns: list[int] | None, keep: int | None = Non
     if cache_dtype == "float16":
         fr.samples = to_half(fr.samples)
     return fr
+
+
+#: Version of the disk cache's layout; a change of what :func:`_read_for_cache` keeps bumps it,
+#: so files of an older layout are never read as the new one.
+DISK_CACHE_VERSION = 1
+#: The arrays of a cached frame kept on disk (Frame fields; absent ones are not written).
+_DISK_FIELDS = tuple(layer.name for layer in PIXEL_LAYERS) + ("samples",)
+
+
+def disk_cache_key(path: str, columns: list[int] | None, keep: int | None, cache_dtype: str) -> str:
+    """Name of frame ``path``'s folder in a disk cache: a hash of the file (absolute path, size,
+    modification time), what is kept of it and :data:`DISK_CACHE_VERSION`, so a re-rendered
+    frame or another model's columns never read stale arrays."""
+    st = os.stat(path)
+    what = repr((os.path.abspath(path), st.st_size, st.st_mtime_ns, columns, keep, cache_dtype, DISK_CACHE_VERSION))
+    return hashlib.sha256(what.encode()).hexdigest()[:24]
+
+
+def _write_disk_cache(path: str, columns: list[int] | None, keep: int | None, cache_dtype: str,
+                      cache_dir: str) -> str:
+    """Frame ``path`` as :func:`_read_for_cache` keeps it, written under ``cache_dir`` once
+    (skipped where its folder exists); returns the folder. Written to a private folder and
+    renamed into place, so a reader (another run, a killed writer's next start) sees a complete
+    folder or none."""
+    import json
+
+    folder = os.path.join(cache_dir, disk_cache_key(path, columns, keep, cache_dtype))
+    if os.path.isdir(folder):
+        return folder
+    fr = _read_for_cache(path, columns, keep, cache_dtype)
+    os.makedirs(cache_dir, exist_ok=True)
+    tmp = f"{folder}.tmp-{os.getpid()}"
+    os.makedirs(tmp, exist_ok=True)
+    for name in _DISK_FIELDS:
+        if (arr := getattr(fr, name, None)) is not None:
+            np.save(os.path.join(tmp, name + ".npy"), np.ascontiguousarray(arr))
+    with open(os.path.join(tmp, "meta.json"), "w") as f:
+        json.dump({"meta": fr.meta, "path": fr.path}, f)
+    try:
+        os.rename(tmp, folder)
+    except OSError:     # another process wrote it first: theirs is the same
+        import shutil
+
+        shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def disk_cached_frame(path: str, columns: list[int] | None, keep: int | None, cache_dtype: str,
+                      cache_dir: str) -> Frame:
+    """Frame ``path`` as :func:`_read_for_cache` gives it, from ``cache_dir`` (written there
+    first if missing), its arrays memory-mapped read-only; equal to the in-memory frame."""
+    import json
+
+    folder = _write_disk_cache(path, columns, keep, cache_dtype, cache_dir)
+    with open(os.path.join(folder, "meta.json")) as f:
+        info = json.load(f)
+    arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r")
+              for name in _DISK_FIELDS if os.path.exists(os.path.join(folder, name + ".npy"))}
+    return Frame(**arrays, meta=info["meta"], path=info["path"])
 
 
 #: the per-sample cache's precisions (SequenceDataset cache_dtype)

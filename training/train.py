@@ -211,6 +211,12 @@ def add_arguments(p):
                         "(half the memory; rounded to 11 significant bits); auto (default): float32 when it "
                         f"fits in {CACHE_MEMORY_FRACTION * 100:.0f}%% of the available memory, else float16, else a clear error. The run "
                         "records the choice and a resumed run keeps it")
+    p.add_argument("--cache-dir", default=None, metavar="DIR",
+                   help="keep the decoded training frames as .npy files in DIR, read back memory-mapped: "
+                        "frames beyond the memory are read from disk instead of ending the run, and a later run "
+                        "on the same frames (the next sitting, an A/B's other arm) decodes no EXR. The items "
+                        "are the same; about 18 MB a 256x256 frame at 8 spp in float16. Not part of the run's "
+                        "config: a resumed run may use another folder or none")
     p.add_argument("--max-sequences", type=int, default=None,
                    help="train on the first N sequences of the training split (by scene seed; nested subsets "
                         "for learning curves)")
@@ -355,7 +361,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
           ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto",
-          autocast: str | None = None, coarse_weight: float | None = None) -> dict:
+          autocast: str | None = None, coarse_weight: float | None = None, cache_dir: str | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -365,7 +371,10 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
 
     ``loader_workers``: processes that build the next batches while the model trains
     (:func:`epoch_batches`); the run is the same with any number, so it is not part of the
-    config and a resumed run may use another."""
+    config and a resumed run may use another.
+
+    ``cache_dir``: keep the decoded frames there, memory-mapped (:class:`SequenceDataset`); like
+    ``loader_workers`` it changes no item, so it is not part of the config."""
     import torch
 
     if window is not None and window < 1:
@@ -454,7 +463,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         _check_schedule(config)     # before the run folder exists
-        config["cache_dtype"] = cache_dtype if cache_dtype != "auto" else _auto_cache_dtype(config, spec, rank, world)
+        config["cache_dtype"] = cache_dtype if cache_dtype != "auto" else _auto_cache_dtype(config, spec, rank, world, cache_dir)
         if rank == 0:
             runs.init_run(run, spec_path, config)
     config.setdefault("temporal_weight", 0.0)     # run folders from before the temporal term
@@ -476,7 +485,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
     groups = tuple(g for g, _ in spec.inputs.sample_groups)
     # run folders from before --cache-dtype cached float32
-    train_set, val_set, test_set = _datasets(config, spec, config.get("cache_dtype", "float32"))
+    train_set, val_set, test_set = _datasets(config, spec, config.get("cache_dtype", "float32"), cache_dir)
     val_kw = {"test_set": test_set, "batch_size": bs, "window": config["window"], "device": device}
     steps_per_epoch = max(1, len(train_set) // bs)
     step, epoch, pos, elapsed = 0, 0, 0, 0.0
@@ -636,29 +645,33 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
     return ckpt
 
 
-def _datasets(config: dict, spec, cache_dtype: str):
-    """The run's (training, validation, test or None) sets, from its config."""
+def _datasets(config: dict, spec, cache_dtype: str, cache_dir: str | None = None):
+    """The run's (training, validation, test or None) sets, from its config; their frames kept
+    in ``cache_dir`` where given."""
     layers = tuple(spec.inputs.layers)
     groups = tuple(g for g, _ in spec.inputs.sample_groups)
     train_set = SequenceDataset(config["data"], "train", layers, crop=config["crop"],
                                 spp_choices=config["spp"], window=config["window"],
                                 seed=config["seed"], val_fraction=config["val_fraction"],
                                 max_sequences=config.get("max_sequences"), sample_groups=groups,
-                                fireflies=config.get("fireflies", 0.0), cache_dtype=cache_dtype)
+                                fireflies=config.get("fireflies", 0.0), cache_dtype=cache_dtype, cache_dir=cache_dir)
     val_set = SequenceDataset(config["data"], "val", layers, crop=max(config["crop"], 128),
                               spp_choices=config["spp"], window=config["window"], augment=False,
                               val_fraction=config["val_fraction"], sample_groups=groups, centre_only=True,
-                              cache_dtype=cache_dtype)
+                              cache_dtype=cache_dtype, cache_dir=cache_dir)
     test_set = None if not config.get("test_data") else SequenceDataset(
         config["test_data"], "all", layers, crop=max(config["crop"], 128), spp_choices=config["spp"],
-        window=config["window"], augment=False, sample_groups=groups, centre_only=True, cache_dtype=cache_dtype)
+        window=config["window"], augment=False, sample_groups=groups, centre_only=True, cache_dtype=cache_dtype,
+        cache_dir=cache_dir)
     return train_set, val_set, test_set
 
 
-def _auto_cache_dtype(config: dict, spec, rank: int, world: int) -> str:
+def _auto_cache_dtype(config: dict, spec, rank: int, world: int, cache_dir: str | None = None) -> str:
     """``--cache-dtype auto`` for a new run (:func:`training.dataset.cache_dtype_for`): every
     process on this machine caches its own sets, so the need is counted once per local process.
-    Rank 0 decides and tells the others, so all train on the same data."""
+    Rank 0 decides and tells the others, so all train on the same data. With a ``cache_dir``
+    the frames that do not fit are read from disk, so float16 is the answer where neither fits
+    (slower steps, not a killed run)."""
     from mcdenoise.training.dataset import available_memory, cache_dtype_for
 
     choice = [None]
@@ -667,7 +680,14 @@ def _auto_cache_dtype(config: dict, spec, rank: int, world: int) -> str:
         local = int(os.environ.get("LOCAL_WORLD_SIZE", world))
         need = {dt: local * sum(d.cache_bytes(dt) for d in sets) for dt in CACHE_DTYPES}
         available = available_memory()
-        choice[0] = cache_dtype_for(need["float32"], need["float16"], available)
+        try:
+            choice[0] = cache_dtype_for(need["float32"], need["float16"], available)
+        except MemoryError:
+            if not cache_dir:
+                raise
+            choice[0] = "float16"
+            print(f"train: the frames need {need['float16'] / 2**30:.1f} GB in float16, more than the memory holds: "
+                  f"the rest is read from {cache_dir} as the steps need it", file=sys.stderr)
         if choice[0] != "float32":
             print(f"train: the frames would take {need['float32'] / 2**30:.1f} GB in float32, more than {CACHE_MEMORY_FRACTION:.0%} of the "
                   f"{available / 2**30:.1f} GB available: caching their samples in float16 "
@@ -706,7 +726,7 @@ def main(args) -> int:
                 quiet=args.quiet, window=args.window, spp=args.spp, temporal_weight=args.temporal_weight,
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
                 lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
-                loader_workers=args.loader_workers, cache_dtype=args.cache_dtype, autocast=args.autocast,
+                loader_workers=args.loader_workers, cache_dtype=args.cache_dtype, cache_dir=args.cache_dir, autocast=args.autocast,
                 coarse_weight=args.coarse_weight)
     print(json.dumps(row, indent=2))
     return 0

@@ -19,11 +19,11 @@ for spec in wskpn-6e wskpn-mr-e; do
   run=$out/$spec
   if [ -f "$run/config.json" ]; then
     mcdenoise train "$spec" --data data/train-256 --out "$run" --resume --steps "$steps" --minutes "$minutes" \
-      --threads 1 --quiet > "$out/$spec.log" 2>&1 &
+      --threads 1 --cache-dir data/cache --quiet > "$out/$spec.log" 2>&1 &
   else
     mcdenoise train "$spec" --data data/train-256 --out "$run" --spp 1 2 4 8 --window 8 --temporal-weight 0.25 \
       --coarse-weight 1 --steps "$steps" --minutes "$minutes" --lr-schedule cosine --val-every "$val" \
-      --test data/curves-test --threads 1 --seed 0 --quiet > "$out/$spec.log" 2>&1 &
+      --test data/curves-test --threads 1 --seed 0 --cache-dir data/cache --quiet > "$out/$spec.log" 2>&1 &
   fi
   pids+=($!)
 done
