@@ -142,6 +142,23 @@ def test_flops_single_conv_exact():
     assert c2.fmas == 4 * 5 * 10 * 4 * 25 and c2.flops == 2 * c2.fmas + 4 * 5 * 10
 
 
+
+def test_flops_command_prints_the_count_and_names_a_file_it_cannot_read(tmp_path, capsys):
+    """The command the result pages quote parameter counts from: one line per file, the same
+    numbers as count_flops; a missing file is named and the others still counted."""
+    import onnx
+    from mcdenoise.training import flops
+    f = tmp_path / "conv.onnx"
+    onnx.save(_conv_model(cin=6, cout=8, k=3, groups=2, h=None, w=None), f)
+    assert flops.main([str(f), str(tmp_path / "missing.onnx"), "--size", "20x10"]) == 1
+    out, err = capsys.readouterr()
+    c = count_flops(str(f), 20, 10)
+    assert f"{f}: " in out and f"{c.params} parameters" in out and c.params == 8 * 3 * 3 * 3 + 8
+    assert f"{c.flops / 1e9:.3f} GFLOP" in out and "at 20x10" in out
+    assert "missing.onnx: cannot count" in err
+    with pytest.raises(SystemExit):
+        flops.main([str(f), "--size", "720p"])
+
 def _loop_model(trips: int, padded: bool = False):
     """y = x + 1 repeated ``trips`` times by a Loop whose body also multiplies by 2 on every
     iteration but the first (an If: the else branch is a Mul, the then branch an Identity);

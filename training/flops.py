@@ -609,3 +609,32 @@ def format_count(c: FlopCount) -> str:
     un = f"; not counted: {c.uncounted}" if c.uncounted else ""
     return (f"{c.flops / 1e9:.3f} GFLOP ({c.fmas / 1e9:.3f} GFMA) at {c.width}x{c.height}, "
             f"{c.params} parameters; per stage GFLOP: {st}{un}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mcdenoise.training.flops FILE.onnx... [--size WxH]``: print each file's
+    FLOPs, FMAs and parameters at one frame size (default 1280x720), the numbers the README
+    and the result pages quote for a spec (export a run folder first: ``mcdenoise export``)."""
+    import argparse
+    import sys
+    p = argparse.ArgumentParser(prog="python -m mcdenoise.training.flops",
+                                description="FLOPs and parameters of ONNX models at one frame size")
+    p.add_argument("models", nargs="+", metavar="FILE.onnx")
+    p.add_argument("--size", default="1280x720", help="frame size WxH (default 1280x720)")
+    a = p.parse_args(argv)
+    try:
+        w, h = (int(v) for v in a.size.lower().split("x"))
+    except ValueError:
+        p.error(f"--size {a.size!r}: give WxH, e.g. 1280x720")
+    rc = 0
+    for m in a.models:
+        try:
+            print(f"{m}: {format_count(count_flops(m, w, h))}")
+        except (OSError, ValueError) as e:     # a missing or unreadable file: say which, go on
+            print(f"{m}: cannot count: {e}", file=sys.stderr)
+            rc = 1
+    return rc
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
