@@ -154,6 +154,47 @@ def test_a_disk_cache_gives_the_same_items_and_spares_a_later_run_the_reading(ti
         os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns))
 
 
+
+@pytest.mark.parametrize("damage", ["truncated", "missing", "meta"])
+def test_a_damaged_disk_cache_entry_is_decoded_again_with_a_line_saying_so(tiny_dataset, tmp_path, capsys, damage):
+    """An entry that cannot be read back whole is removed, decoded again from the EXR and
+    rewritten (one stderr line names it): the frame equals a fresh read, never a frame with a
+    layer missing; an entry still unreadable after that is an OSError naming the folder."""
+    import mcdenoise.training.dataset as dataset
+    from mcdenoise.training.testsets import sequences
+
+    frame = sequences(tiny_dataset)[0][0]
+    cache = str(tmp_path / "cache")
+    want = dataset._read_for_cache(frame, None, None, "float32")
+    folder = dataset._write_disk_cache(frame, None, None, "float32", cache)
+    if damage == "truncated":
+        p = os.path.join(folder, "samples.npy")
+        os.truncate(p, os.path.getsize(p) // 2)
+    elif damage == "missing":
+        os.remove(os.path.join(folder, "samples.npy"))
+    else:
+        with open(os.path.join(folder, "meta.json"), "w") as f:
+            f.write('{"meta": ')
+    got = dataset.disk_cached_frame(frame, None, None, "float32", cache)
+    assert "is damaged" in capsys.readouterr().err
+    for name in dataset._DISK_FIELDS:
+        a, b = getattr(want, name, None), getattr(got, name, None)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+    assert sorted(os.listdir(cache)) == [os.path.basename(folder)]
+
+    real = np.load
+
+    def broken(path, *a, **k):
+        if str(path).endswith("samples.npy"):
+            raise ValueError("mmap length is greater than file size")
+        return real(path, *a, **k)
+
+    import unittest.mock
+    with unittest.mock.patch.object(dataset.np, "load", broken), pytest.raises(OSError, match="cannot be read back"):
+        dataset.disk_cached_frame(frame, None, None, "float32", cache)
+
 def test_to_half_clips_finite_values_and_keeps_nan_and_inf():
     a = np.array([1.0, 1e5, -1e6, np.inf, -np.inf, np.nan, 0.1], np.float32)
     h = to_half(a)

@@ -428,7 +428,10 @@ def _write_disk_cache(path: str, columns: list[int] | None, keep: int | None, ca
         if (arr := getattr(fr, name, None)) is not None:
             np.save(os.path.join(tmp, name + ".npy"), np.ascontiguousarray(arr))
     with open(os.path.join(tmp, "meta.json"), "w") as f:
-        json.dump({"meta": fr.meta, "path": fr.path}, f)
+        # "fields": what a later read must find (a lost .npy would otherwise read as a frame
+        # without that layer)
+        json.dump({"meta": fr.meta, "path": fr.path,
+                   "fields": [n for n in _DISK_FIELDS if getattr(fr, n, None) is not None]}, f)
     try:
         os.rename(tmp, folder)
     except OSError:     # another process wrote it first: theirs is the same
@@ -441,14 +444,41 @@ def _write_disk_cache(path: str, columns: list[int] | None, keep: int | None, ca
 def disk_cached_frame(path: str, columns: list[int] | None, keep: int | None, cache_dtype: str,
                       cache_dir: str) -> Frame:
     """Frame ``path`` as :func:`_read_for_cache` gives it, from ``cache_dir`` (written there
-    first if missing), its arrays memory-mapped read-only; equal to the in-memory frame."""
-    import json
+    first if missing), its arrays memory-mapped read-only; equal to the in-memory frame.
+
+    An entry that cannot be read back whole (a truncated or missing .npy, a broken meta.json:
+    a full or failing disk after the rename, or a hand edit) is removed, decoded again from the
+    EXR and written anew, with one line on stderr naming it; a second failure raises
+    :class:`OSError` naming the folder."""
+    import shutil
+    import sys
 
     folder = _write_disk_cache(path, columns, keep, cache_dtype, cache_dir)
+    try:
+        return _read_disk_cache(folder)
+    except (OSError, ValueError, KeyError) as e:   # json.JSONDecodeError is a ValueError
+        print(f"mcdenoise train: the disk cache entry {folder} is damaged ({e}); "
+              f"decoding {path} again", file=sys.stderr)
+        shutil.rmtree(folder, ignore_errors=True)
+    folder = _write_disk_cache(path, columns, keep, cache_dtype, cache_dir)
+    try:
+        return _read_disk_cache(folder)
+    except (OSError, ValueError, KeyError) as e:
+        raise OSError(f"the disk cache entry {folder} cannot be read back after writing it again "
+                      f"({e}): check the disk, or train without --cache-dir") from e
+
+
+def _read_disk_cache(folder: str) -> Frame:
+    """The frame a :func:`_write_disk_cache` folder holds, memory-mapped; ValueError or OSError
+    where a file is missing, truncated or not what meta.json lists."""
+    import json
+
     with open(os.path.join(folder, "meta.json")) as f:
         info = json.load(f)
-    arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r")
-              for name in _DISK_FIELDS if os.path.exists(os.path.join(folder, name + ".npy"))}
+    fields = info.get("fields")     # absent in entries written before it was recorded
+    if fields is None:
+        fields = [n for n in _DISK_FIELDS if os.path.exists(os.path.join(folder, n + ".npy"))]
+    arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r") for name in fields}
     return Frame(**arrays, meta=info["meta"], path=info["path"])
 
 
