@@ -142,7 +142,6 @@ def test_flops_single_conv_exact():
     assert c2.fmas == 4 * 5 * 10 * 4 * 25 and c2.flops == 2 * c2.fmas + 4 * 5 * 10
 
 
-
 def test_flops_command_prints_the_count_and_names_a_file_it_cannot_read(tmp_path, capsys):
     """The command the result pages quote parameter counts from: one line per file, the same
     numbers as count_flops; a missing file is named and the others still counted."""
@@ -158,6 +157,7 @@ def test_flops_command_prints_the_count_and_names_a_file_it_cannot_read(tmp_path
     assert "missing.onnx: cannot count" in err
     with pytest.raises(SystemExit):
         flops.main([str(f), "--size", "720p"])
+
 
 def _loop_model(trips: int, padded: bool = False):
     """y = x + 1 repeated ``trips`` times by a Loop whose body also multiplies by 2 on every

@@ -154,7 +154,6 @@ def test_a_disk_cache_gives_the_same_items_and_spares_a_later_run_the_reading(ti
         os.utime(frame, ns=(st.st_atime_ns, st.st_mtime_ns))
 
 
-
 @pytest.mark.parametrize("damage", ["truncated", "missing", "meta"])
 def test_a_damaged_disk_cache_entry_is_decoded_again_with_a_line_saying_so(tiny_dataset, tmp_path, capsys, damage):
     """An entry that cannot be read back whole is removed, decoded again from the EXR and
