@@ -194,6 +194,7 @@ def test_a_damaged_disk_cache_entry_is_decoded_again_with_a_line_saying_so(tiny_
     with unittest.mock.patch.object(dataset.np, "load", broken), pytest.raises(OSError, match="cannot be read back"):
         dataset.disk_cached_frame(frame, None, None, "float32", cache)
 
+
 def test_to_half_clips_finite_values_and_keeps_nan_and_inf():
     a = np.array([1.0, 1e5, -1e6, np.inf, -np.inf, np.nan, 0.1], np.float32)
     h = to_half(a)
