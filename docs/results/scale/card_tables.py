@@ -1,6 +1,7 @@
 """The quality tables of a scale run's model card, from committed evaluations only.
 
     python docs/results/scale/card_tables.py wskpn-6e-6 > docs/results/scale/card-wskpn-6e-6.md
+    python docs/results/scale/card_tables.py wskpn-mr-e-3 wskpn-6e-6   # beside another run's columns
 
 Reads docs/results/long/<set>/<RUN>-<spp>spp.json and baseline-<spp>spp.json (eval.sh), and the
 run folder's and docs/results/scale/baseline's curves-test files (sitting.sh, baseline.sh).
@@ -30,11 +31,13 @@ def cell(r: dict | None) -> str:
     return f"{r['psnr']:.2f}" + (f" / {t:.3f}" if t is not None else "")
 
 
-def main(run: str) -> None:
-    model = json.loads((HERE / run / "config.json").read_text())["spec"]
-    print(f"Made by `python docs/results/scale/card_tables.py {run}`.\n")
+def main(run: str, *others: str) -> None:
+    """``others``: run folders (e.g. the shipped model's) whose columns follow ``run``'s."""
+    runs = (run, *others)
+    spec = {r: json.loads((HERE / r / "config.json").read_text())["spec"] for r in runs}
+    print(f"Made by `python docs/results/scale/card_tables.py {' '.join(runs)}`.\n")
     print("Long sequences and hand-made scenes, after 8 warm-up frames, with history: PSNR dB / TRMAE\n")
-    cols = [f"{model} ({run})", *BASELINE]
+    cols = [f"{spec[r]} ({r})" for r in runs] + list(BASELINE)
     print("| set | spp | " + " | ".join(cols) + " |")
     print("|---|---:|" + "---:|" * len(cols))
     for s in SETS:
@@ -42,13 +45,15 @@ def main(run: str) -> None:
             own, base = LONG / s / f"{run}-{spp}spp.json", LONG / s / f"baseline-{spp}spp.json"
             if not own.exists() or not base.exists():
                 continue
-            o, b = scores(own), scores(base)
-            print(f"| {s} | {spp} | " + " | ".join([cell(o.get(model))] + [cell(b.get(m)) for m in BASELINE]) + " |")
+            b = scores(base)
+            mine = [cell(scores(f).get(spec[r])) if (f := LONG / s / f"{r}-{spp}spp.json").exists() else "-"
+                    for r in runs]
+            print(f"| {s} | {spp} | " + " | ".join(mine + [cell(b.get(m)) for m in BASELINE]) + " |")
     print("\ncurves-test (4 procedural scenes x 8 frames, 128x128, seed 11): sequences after 2 warm-up "
           "frames, PSNR dB / TRMAE; stills (first frames) PSNR dB\n")
     print("| method | sequences 1 spp | 4 spp | stills 1 | 2 | 4 | 8 spp |")
     print("|---|---:|---:|---:|---:|---:|---:|")
-    rows = {f"{model} ({run})": (HERE / run, model)}
+    rows = {f"{spec[r]} ({r})": (HERE / r, spec[r]) for r in runs}
     rows.update({m: (HERE / "baseline", m) for m in ("wskpn-6", "oidn-high")})
     for label, (folder, key) in rows.items():
         seq = [cell(scores(folder / f"curves-test-{spp}spp.json").get(key)) for spp in (1, 4)]
@@ -61,4 +66,4 @@ def main(run: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:])
