@@ -293,6 +293,36 @@ def test_lr_sets_the_peak_rate_of_a_new_run_and_a_resume_keeps_it(tiny_dataset, 
     assert not (tmp_path / "bad").exists()
 
 
+def test_gradient_clipping_is_recorded_bounds_the_step_and_a_resume_keeps_it(tiny_dataset, tmp_path, capsys):
+    """--clip-grad: every validation row carries the interval's gradient norms; a norm above
+    every step's is a no-op, one below every step's scales each step (docs/results/scale,
+    mr-e sitting 4)."""
+    train("wskpn-3", tiny_dataset, tmp_path / "plain", steps=3, **KW)
+    rows = runs.read_metrics(tmp_path / "plain")
+    first = rows[0]
+    assert first["interval_steps"] >= 1 and first["clipped"] == 0
+    assert 0 < first["grad_norm_median"] <= first["grad_norm_max"] and np.isfinite(first["train_loss_mean"])
+    assert sum(r.get("interval_steps", 0) for r in rows) == 3
+    top = max(r["grad_norm_max"] for r in rows if "grad_norm_max" in r)
+    low = min(r["grad_norm_median"] for r in rows if "grad_norm_median" in r)
+
+    train("wskpn-3", tiny_dataset, tmp_path / "loose", steps=3, clip_grad=top * 2, **KW)
+    plain, loose = _weights(tmp_path / "plain"), _weights(tmp_path / "loose")
+    for k in plain:
+        torch.testing.assert_close(plain[k], loose[k], rtol=0, atol=0, msg=k)
+    train("wskpn-3", tiny_dataset, tmp_path / "tight", steps=3, clip_grad=low / 1e3, **KW)
+    tight_rows = runs.read_metrics(tmp_path / "tight")
+    assert sum(r.get("clipped", 0) for r in tight_rows) == 3
+    tight = _weights(tmp_path / "tight")
+    assert any(not torch.equal(plain[k], tight[k]) for k in plain if plain[k].dtype.is_floating_point)
+    assert json.loads((tmp_path / "tight" / runs.CONFIG_FILE).read_text())["clip_grad"] == low / 1e3
+    with pytest.raises(ValueError, match="keeps its clipping"):
+        train("wskpn-3", tiny_dataset, tmp_path / "tight", steps=4, resume=True, clip_grad=1.0, **KW)
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "bad"), "--clip-grad", "0"]) == 2
+    assert "--clip-grad must be a positive norm" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resume(tiny_dataset, tmp_path, monkeypatch,
                                                                                   capsys):
     """--cache-dtype auto caches float32 where the frames fit in memory, float16 where only that

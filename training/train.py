@@ -237,6 +237,12 @@ def add_arguments(p):
                    help="learning rate over the steps: constant (default), or cosine from the run's "
                         "lr (--lr, else the spec's) down to 1/20 of it at --steps (needs a finite --steps; a --minutes budget "
                         "that stops first leaves it part way)")
+    p.add_argument("--clip-grad", type=float, default=None, metavar="NORM",
+                   help="scale each step's gradient down to this global L2 norm where it is larger "
+                        "(torch.nn.utils.clip_grad_norm_), so one batch with an outlier cannot undo a "
+                        "sitting's training; each validation row records the interval's gradient norms "
+                        "(grad_norm_median, grad_norm_max, clipped) either way. Default off; a resumed run "
+                        "keeps its own")
     p.add_argument("--ema", type=float, default=None, metavar="DECAY",
                    help="also keep a moving average of the weights (e.g. 0.995), which validation scores "
                         "and export ships (default: off)")
@@ -361,7 +367,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           max_sequences: int | None = None, test_data: str | None = None, device: str = "cpu",
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
           ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto",
-          autocast: str | None = None, coarse_weight: float | None = None, cache_dir: str | None = None) -> dict:
+          autocast: str | None = None, coarse_weight: float | None = None, cache_dir: str | None = None,
+          clip_grad: float | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -374,7 +381,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     config and a resumed run may use another.
 
     ``cache_dir``: keep the decoded frames there, memory-mapped (:class:`SequenceDataset`); like
-    ``loader_workers`` it changes no item, so it is not part of the config."""
+    ``loader_workers`` it changes no item, so it is not part of the config.
+
+    ``clip_grad``: the largest global L2 norm of a step's gradient (None: no clipping). Why:
+    a sitting of wskpn-mr-e (docs/results/scale, mr-e sitting 4) lost 2.5 dB between two
+    validations at a falling rate, with nothing but the last batch's loss logged to say why.
+    Each validation row now carries the interval's training loss mean (``train_loss_mean``)
+    and gradient norms before clipping (``grad_norm_median``, ``grad_norm_max``, ``clipped``:
+    the steps scaled down); they start again at a resume, so they are a record, not state."""
     import torch
 
     if window is not None and window < 1:
@@ -412,6 +426,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError("--init starts a new run; --resume continues one: give one of them")
     if lr is not None and not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"--lr must be a positive number, got {lr}")
+    if clip_grad is not None and not (math.isfinite(clip_grad) and clip_grad > 0):
+        raise ValueError(f"--clip-grad must be a positive norm, got {clip_grad}")
     init_ckpt = None if init is None else _init_checkpoint(init, spec_name)
     if resume:
         if not (run / runs.CONFIG_FILE).exists():
@@ -431,6 +447,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             raise ValueError(f"{run}: trained with --ema {config.get('ema')}; a resumed run keeps its average")
         if autocast is not None and autocast != config.get("autocast"):
             raise ValueError(f"{run}: trained with --autocast {config.get('autocast')}; a resumed run keeps its arithmetic")
+        if clip_grad is not None and clip_grad != config.get("clip_grad"):
+            raise ValueError(f"{run}: trained with --clip-grad {config.get('clip_grad')}; a resumed run keeps its clipping")
         if coarse_weight is not None and coarse_weight != config.get("coarse_weight", 0.0):
             raise ValueError(f"{run}: trained with --coarse-weight {config.get('coarse_weight', 0.0)}; "
                              "a resumed run keeps its loss")
@@ -456,6 +474,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "coarse_weight": coarse_weight or 0.0,
             "regularizer_weight": tr.regularizer_weight, "lr_schedule": lr_schedule or "constant",
             "ema": ema, "autocast": autocast, "val_fraction": val_fraction, "val_every": val_every,
+            "clip_grad": clip_grad,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "fireflies": fireflies, "test_data": os.path.abspath(test_data) if test_data else None,
             "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
@@ -558,6 +577,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         if d is not None:
             d.warm(processes=readers)
     model.train()
+    interval = _Interval()
     t_start = time.perf_counter() - elapsed
     stopped = budget_s is not None and elapsed >= budget_s     # the same in every process
     while step < config["steps"] and not stopped:
@@ -589,6 +609,9 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                                        "a lower learning rate or the data's NaN report may help)")
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            # After backward DDP's gradients are the global batch's, so every process clips alike.
+            norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), config.get("clip_grad") or math.inf))
+            interval.add(float(shared[0]), norm, config.get("clip_grad"))
             for g in opt.param_groups:       # a function of the step alone, so resume stays exact
                 g["lr"] = learning_rate(config, step)
             opt.step()
@@ -602,7 +625,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
                 bar.set_postfix(loss=f"{float(shared[0]):.4f}", epoch=epoch)
             if config["val_every"] and step % config["val_every"] == 0:
                 if rank == 0:
-                    _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]), **val_kw)
+                    _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]),
+                              interval=interval.take(), **val_kw)
                 save()
             if shared[1] > 0:
                 stopped = True
@@ -612,13 +636,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             pos = 0
             epoch += 1
             if not config["val_every"] and rank == 0:
-                _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]), **val_kw)
+                _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]),
+                          interval=interval.take(), **val_kw)
             save()
     if bar is not None:
         bar.close()
     save()
     row = {} if rank != 0 else _validate(run, scored(), val_set, protocol, step, epoch, elapsed, None, final=True,
-                                         **val_kw)
+                                         interval=interval.take(), **val_kw)
     if world > 1:
         # Every process leaves the group together: a process that exits with gloo's threads
         # still running aborts ("terminate called without an active exception", exit -6).
@@ -699,11 +724,32 @@ def _auto_cache_dtype(config: dict, spec, rank: int, world: int, cache_dir: str 
     return choice[0]
 
 
+class _Interval:
+    """The training steps since the last validation row: loss and gradient-norm statistics."""
+
+    def __init__(self):
+        self.losses, self.norms, self.clipped = [], [], 0
+
+    def add(self, loss: float, norm: float, clip: float | None) -> None:
+        self.losses.append(loss)
+        self.norms.append(norm)
+        self.clipped += bool(clip is not None and norm > clip)
+
+    def take(self) -> dict:
+        """The interval's statistics for a metrics row (empty after no step), and a new interval."""
+        row = {} if not self.norms else {
+            "interval_steps": len(self.norms), "train_loss_mean": float(np.mean(self.losses)),
+            "grad_norm_median": float(np.median(self.norms)), "grad_norm_max": float(np.max(self.norms)),
+            "clipped": self.clipped}
+        self.__init__()
+        return row
+
+
 def _validate(run, model, val_set, protocol, step, epoch, elapsed, loss, final=False, test_set=None,
-              batch_size: int = 1, window: int = 1, device: str = "cpu", live=None) -> dict:
+              batch_size: int = 1, window: int = 1, device: str = "cpu", live=None, interval: dict | None = None) -> dict:
     row = {"step": step, "epoch": epoch, "elapsed_s": round(elapsed, 1), "train_loss": loss,
            "final": final, "examples": step * batch_size, "frames_seen": step * batch_size * window,
-           **evaluate(model, val_set, protocol, device=device)}
+           **(interval or {}), **evaluate(model, val_set, protocol, device=device)}
     if test_set is not None:
         row.update({"test" + k[3:]: v for k, v in evaluate(model, test_set, protocol, device=device).items() if k.startswith("val_")})
     if live is not None:
@@ -727,6 +773,6 @@ def main(args) -> int:
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
                 lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
                 loader_workers=args.loader_workers, cache_dtype=args.cache_dtype, cache_dir=args.cache_dir, autocast=args.autocast,
-                coarse_weight=args.coarse_weight)
+                coarse_weight=args.coarse_weight, clip_grad=args.clip_grad)
     print(json.dumps(row, indent=2))
     return 0
