@@ -13,6 +13,8 @@
 #   FIREFLIES=D: train --fireflies D, the outlier augmentation; default 0; EMA=DECAY: train --ema
 #   DECAY, the weights' moving average that validation scores and export ships; default off;
 #   COARSE=W: train --coarse-weight W, the loss of 8x8 block means (docs/results/coarse); default off;
+#   CLIP=NORM: train --clip-grad NORM, the largest gradient norm a step takes (mr-e sitting 4 lost 2.5 dB
+#   between two validations without it); default off;
 #   CACHE=DIR: train --cache-dir DIR, the decoded frames kept on disk for the next run on this machine)
 #   K           this sitting's number: its run is docs/results/scale/<SPEC>-<K>, started from
 #               <SPEC>-<K-1>; sitting 1 starts from scratch, or from INIT=RUN_FOLDER.
@@ -63,7 +65,7 @@ fi
 # Sequences still rendering hold .partial.json and are left out by the data set.
 mcdenoise train "$spec" --data data/train-256 --out "$run" ${init:+--init "$init"} --spp 1 2 4 8 --window 8 \
   --temporal-weight 0.25 --steps "${STEPS:-2400}" ${LR:+--lr "$LR"} --lr-schedule cosine --minutes "$train_min" \
-  --val-every "${VAL_EVERY:-300}" --test data/curves-test --threads "$cores" --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} ${COARSE:+--coarse-weight "$COARSE"} ${CACHE:+--cache-dir "$CACHE"} --quiet
+  --val-every "${VAL_EVERY:-300}" --test data/curves-test --threads "$cores" --fireflies "${FIREFLIES:-0}" ${EMA:+--ema "$EMA"} ${COARSE:+--coarse-weight "$COARSE"} ${CLIP:+--clip-grad "$CLIP"} ${CACHE:+--cache-dir "$CACHE"} --quiet
 python - "$run" "$SHARDS" <<'EOF'
 import json, sys
 from mcdenoise.training.dataset import discover
