@@ -88,6 +88,22 @@ def test_quick_bench_writes_every_file_and_method(quick_run):
         assert f"| {m} | " in mem, m
 
 
+@pytest.mark.parametrize("spec_name", ["wskpn-3", "wskpn-6e", "nbg-2l-1g", "anf-s", "ndle-s"])
+def test_torch_timing_feeds_every_input_of_every_family(spec_name):
+    """The full bench's torch eager rows (``--quick`` skips them): each family's inputs,
+    per-sample data and fed state weights included, come from the same protocol the driver
+    uses, and every contract stage gets a time (anf-s once failed here: 'embed_weight')."""
+    from mcdenoise.training.specs import build_model, load_spec
+
+    spec = load_spec(spec_name)
+    model = build_model(spec).eval().deploy()
+    stages = list(spec.stages)
+    med = harness.bench_torch(model, spec.protocol, stages, 32, 24, frames=1, warmup=1, spp=2)
+    assert med[harness.timing.GRAPH] > 0
+    for s in stages:
+        assert s in med and med[s] > 0, s
+
+
 def test_peak_memory_grows_with_the_frame_and_failures_say_why():
     """The fresh-process peak sees onnxruntime's own allocations: a 256x256 frame through
     wskpn-3 adds more than a 32x32 one (by much more than the 64x more pixels' input, which is

@@ -203,7 +203,9 @@ def bench_torch(model, protocol, contract_stages, w: int, h: int, frames: int, w
         if groups:
             feeds[SAMPLES_INPUT] = torch.from_numpy(sample_inputs(frame, groups)).to(device)
         feeds.update({k: torch.tensor(v) for k, v in getattr(model, "settings", {}).items()})
-        # A history in full swing: every pixel has one, the state holds colour-like values.
+        # The protocol's own first-frame feeds (its fed state weights among them), then a
+        # history in full swing: every pixel has one, the state holds colour-like values.
+        protocol.start(feeds, torch.zeros(1, 1, h, w, device=device), spp if groups else None)
         for _, inp, _, ch in protocol.state:
             feeds[inp] = feeds["color"][:, :1].expand(-1, ch, -1, -1).clone()
         if protocol.state:
