@@ -13,7 +13,9 @@ from mcdenoise.runtime.frames import FrameError
 from mcdenoise.training import runs
 from mcdenoise.training.train import train
 
-KW = dict(crop=32, batch_size=2, quiet=True, val_every=0)
+# precise_bn_windows: a new run's default (256) calibrates BatchNorm over more windows than the
+# tiny set needs; 16 keeps the calibration in every run here at a test's cost.
+KW = dict(crop=32, batch_size=2, quiet=True, val_every=0, precise_bn_windows=16)
 
 
 def _weights(run):
@@ -323,6 +325,50 @@ def test_gradient_clipping_is_recorded_bounds_the_step_and_a_resume_keeps_it(tin
     assert not (tmp_path / "bad").exists()
 
 
+def test_batchnorm_statistics_are_estimated_afresh_for_scoring_and_export_only(tiny_dataset, tmp_path, capsys):
+    """--precise-bn: validation and the run folder's model get BatchNorm statistics averaged over
+    a fixed set of training windows (mr-e sitting 4 lost 2.6 dB to the running averages of its
+    last batches); the live weights and running averages train exactly as without it."""
+    from mcdenoise.training.train import BN_STATS, _datasets, precise_bn
+
+    train("wskpn-3", tiny_dataset, tmp_path / "plain", steps=3, **dict(KW, precise_bn_windows=0))
+    train("wskpn-3", tiny_dataset, tmp_path / "cal", steps=3, **KW)
+    plain = torch.load(tmp_path / "plain" / runs.CHECKPOINT_FILE, weights_only=False)
+    cal = torch.load(tmp_path / "cal" / runs.CHECKPOINT_FILE, weights_only=False)
+    for k in plain["model"]:
+        torch.testing.assert_close(plain["model"][k], cal["model"][k], rtol=0, atol=0, msg=k)
+    assert plain["bn"] is None and cal["bn"] and all(k.endswith(BN_STATS) for k in cal["bn"])
+    assert any(not torch.equal(cal["bn"][k], cal["model"][k]) for k in cal["bn"] if k.endswith("running_var"))
+    # What export and evaluation rebuild carries the calibrated statistics; without them, the running ones.
+    for run, want in ((tmp_path / "cal", cal["bn"]), (tmp_path / "plain", plain["model"])):
+        _, model, _ = runs.load_run(run)
+        state = model.state_dict()
+        for k in cal["bn"]:
+            torch.testing.assert_close(state[k], want[k], rtol=0, atol=0, msg=f"{run.name} {k}")
+    # The same windows at every calibration, whatever epoch the set is at, which is restored.
+    config = json.loads((tmp_path / "cal" / runs.CONFIG_FILE).read_text())
+    assert config["precise_bn"] == 16
+    spec, model, _ = runs.load_run(tmp_path / "plain")
+    train_set = _datasets(config, spec, "float32")[0]
+    stats = []
+    for epoch in (0, 7):
+        train_set.set_epoch(epoch)
+        net = precise_bn(model, train_set, spec.protocol, 16, config["batch_size"])
+        assert train_set.epoch == epoch and not net.training
+        stats.append({k: v for k, v in net.state_dict().items() if k.endswith(BN_STATS)})
+    for k in cal["bn"]:
+        torch.testing.assert_close(stats[0][k], stats[1][k], rtol=0, atol=0, msg=k)
+        torch.testing.assert_close(stats[0][k], cal["bn"][k], rtol=1e-5, atol=1e-7, msg=k)
+    tracked = next(v for k, v in stats[0].items() if k.endswith("num_batches_tracked"))
+    assert int(tracked) == 16 // config["batch_size"] * config["window"]      # a forward call per batch and frame
+    # A model without BatchNorm is scored as it is.
+    assert precise_bn(torch.nn.Conv2d(1, 1, 1), train_set, spec.protocol, 16, 2).__class__ is torch.nn.Conv2d
+    with pytest.raises(ValueError, match="keeps its own"):
+        train("wskpn-3", tiny_dataset, tmp_path / "cal", steps=4, resume=True, **dict(KW, precise_bn_windows=4))
+    assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "bad"), "--precise-bn", "-1"]) == 2
+    assert "--precise-bn must be" in capsys.readouterr().err
+
+
 def test_the_cache_precision_is_chosen_for_the_memory_recorded_and_kept_on_resume(tiny_dataset, tmp_path, monkeypatch,
                                                                                   capsys):
     """--cache-dtype auto caches float32 where the frames fit in memory, float16 where only that
@@ -386,7 +432,9 @@ def test_bfloat16_autocast_trains_every_family_close_to_float32(tiny_dataset, tm
     a second, resumed step; recorded, kept on resume."""
     import mcdenoise.training.train as train_module
 
-    kw = dict(KW, window=2)     # the tiny sequences are 3 frames; anf-s trains on 8
+    # the tiny sequences are 3 frames; anf-s trains on 8. No BatchNorm calibration: it runs the
+    # model in training mode in float32 (as validation scores it), which the spy would count.
+    kw = dict(KW, window=2, precise_bn_windows=0)
     conv_dtypes = []
     run_window = train_module.run_window
 
@@ -476,10 +524,11 @@ def test_weight_average_is_what_validation_scores_and_export_ships(tiny_dataset,
     assert last["live_val_psnr"] == plain_last["val_psnr"] and last["val_psnr"] != plain_last["val_psnr"]
     assert "live_val_psnr" not in plain_last
     assert any(not torch.equal(ckpt["ema"][k], ckpt["model"][k]) for k in plain if plain[k].dtype.is_floating_point)
-    # The run folder ships the average: load_run (what export and evaluation rebuild from) holds it.
+    # The run folder ships the average: load_run (what export and evaluation rebuild from) holds it,
+    # with the BatchNorm statistics calibrated for the averaged weights.
     _, model, _ = runs.load_run(tmp_path / "avg")
     for k, v in model.state_dict().items():
-        torch.testing.assert_close(v, ckpt["ema"][k], rtol=0, atol=0, msg=k)
+        torch.testing.assert_close(v, ckpt["bn"][k] if k in ckpt["bn"] else ckpt["ema"][k], rtol=0, atol=0, msg=k)
     # Resume is exact for the average too, and keeps the run's decay.
     train("wskpn-3", tiny_dataset, tmp_path / "split", steps=2, ema=0.9, **KW)
     train("wskpn-3", tiny_dataset, tmp_path / "split", steps=4, resume=True, **KW)

@@ -50,7 +50,8 @@ def init_run(run_dir: str | os.PathLike, spec_path: str | os.PathLike, config: d
 
 def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
     """Rebuild ``(spec, model, checkpoint)`` from a run folder alone (eval mode, weights loaded:
-    the run's weight average where it kept one, else its last weights).
+    the run's weight average where it kept one, else its last weights; BatchNorm statistics
+    from the checkpoint's ``bn`` where the run estimated them afresh).
 
     Raises FileNotFoundError naming the missing file, ValueError for a checkpoint that cannot
     be read or does not fit the spec.
@@ -77,6 +78,8 @@ def load_run(run_dir: str | os.PathLike, map_location: str = "cpu"):
     except RuntimeError as e:  # the spec was edited after training, or files from two runs
         first = next((ln.strip() for ln in str(e).splitlines()[1:] if ln.strip()), str(e))
         raise ValueError(f"{run}: the checkpoint does not match {SPEC_FILE} ({first})") from None
+    if ckpt.get("bn"):     # BatchNorm statistics estimated afresh (training.train.precise_bn)
+        model.load_state_dict({**model.state_dict(), **ckpt["bn"]})
     model.eval()
     return spec, model, ckpt
 

@@ -181,6 +181,63 @@ def evaluate(model, dataset, protocol: Protocol, batch_size: int = 4, device: st
             "noisy_psnr": psnr(n, r), "noisy_smape": smape(n, r), "val_items": int(len(p))}
 
 
+#: Suffixes of a BatchNorm layer's state_dict entries that hold its population statistics.
+BN_STATS = ("running_mean", "running_var", "num_batches_tracked")
+#: The epoch whose items (and the next ones') calibrate BatchNorm statistics (:func:`precise_bn`):
+#: far beyond any run's epochs, so they are not the items of the steps just taken.
+CALIBRATION_EPOCH = 10 ** 6
+#: Training windows a new run calibrates BatchNorm on (``--precise-bn``): about 30 batches'
+#: forward passes, a few seconds to a minute on a CPU; on mr-e sitting 4's weights 64 and 256
+#: windows scored within 0.02 dB of each other.
+PRECISE_BN_WINDOWS = 256
+
+
+def precise_bn(model, dataset, protocol: Protocol, windows: int, batch_size: int, device: str = "cpu"):
+    """A copy of ``model`` (eval mode) whose BatchNorm layers hold population statistics:
+    the cumulative mean of the batch statistics over ``windows`` items of ``dataset`` (a
+    training set: random crops, spp and symmetries), each item's frames unrolled as in
+    training. The items are those of epochs :data:`CALIBRATION_EPOCH` and on, so every
+    calibration of a run reads the same ones, whatever epoch training is at; the dataset's
+    own epoch is restored.
+
+    Why: at BatchNorm's default momentum of 0.1 the running statistics average the last ~10
+    forward calls, and an 8-frame window makes 8 calls a step, so a run's saved statistics
+    were those of its last one or two batches. After mr-e sitting 4 the first layer's running
+    variance was 12-23x sitting 3's, and putting sitting 3's statistics back into that one
+    layer alone gave +1.1 dB on curves-test (docs/results/scale, "mr-e sitting 4"). Returns
+    ``model`` itself where it has no BatchNorm or ``windows`` is 0."""
+    import torch
+    from torch.nn.modules.batchnorm import _BatchNorm
+
+    from mcdenoise.training.dataset import collate
+
+    if not windows or not any(isinstance(m, _BatchNorm) for m in model.modules()):
+        return model
+    net = copy.deepcopy(model)
+    net.train()
+    for m in net.modules():
+        if isinstance(m, _BatchNorm):
+            m.reset_running_stats()
+            m.momentum = None       # None: a cumulative average over every forward call
+    epoch = dataset.epoch
+
+    def item(k):
+        dataset.set_epoch(CALIBRATION_EPOCH + k // len(dataset))
+        return dataset[k % len(dataset)]
+
+    try:
+        with torch.no_grad():
+            for i in range(0, windows, batch_size):
+                batch = collate([item(k) for k in range(i, min(windows, i + batch_size))])
+                run_window(net, {k: v.to(device) for k, v in batch.items()}, protocol)
+    finally:
+        dataset.set_epoch(epoch)
+    for m in net.modules():
+        if isinstance(m, _BatchNorm):
+            m.momentum = 0.1
+    return net.eval()
+
+
 def add_arguments(p):
     p.add_argument("spec", help="model spec name (models_spec/<name>.toml) or path")
     add_data(p)
@@ -243,6 +300,11 @@ def add_arguments(p):
                         "sitting's training; each validation row records the interval's gradient norms "
                         "(grad_norm_median, grad_norm_max, clipped) either way. Default off; a resumed run "
                         "keeps its own")
+    p.add_argument("--precise-bn", type=int, default=None, metavar="WINDOWS",
+                   help="before each validation and the final save, BatchNorm's statistics are estimated "
+                        "afresh over this many training windows (precise_bn), which validation scores and export "
+                        f"ships; the live weights train as without it (default {PRECISE_BN_WINDOWS} for a new run; 0: off, "
+                        "BatchNorm's running averages of the last few batches; a resumed run keeps its own)")
     p.add_argument("--ema", type=float, default=None, metavar="DECAY",
                    help="also keep a moving average of the weights (e.g. 0.995), which validation scores "
                         "and export ships (default: off)")
@@ -368,7 +430,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
           lr_schedule: str | None = None, init: str | None = None, fireflies: float = 0.0, lr: float | None = None,
           ema: float | None = None, loader_workers: int = 0, cache_dtype: str = "auto",
           autocast: str | None = None, coarse_weight: float | None = None, cache_dir: str | None = None,
-          clip_grad: float | None = None) -> dict:
+          clip_grad: float | None = None, precise_bn_windows: int | None = None) -> dict:
     """Train and return the final metrics row.  See module docstring.
 
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
@@ -388,7 +450,13 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     validations at a falling rate, with nothing but the last batch's loss logged to say why.
     Each validation row now carries the interval's training loss mean (``train_loss_mean``)
     and gradient norms before clipping (``grad_norm_median``, ``grad_norm_max``, ``clipped``:
-    the steps scaled down); they start again at a resume, so they are a record, not state."""
+    the steps scaled down); they start again at a resume, so they are a record, not state.
+
+    ``precise_bn_windows``: BatchNorm statistics for validation and export come from
+    :func:`precise_bn` over that many training windows (None: :data:`PRECISE_BN_WINDOWS` for a
+    new run, a resumed run's own; 0: off). The checkpoint keeps them under ``bn``
+    (:func:`runs.load_run` applies them); the live weights and their running averages, which
+    training and resume use, are untouched."""
     import torch
 
     if window is not None and window < 1:
@@ -426,6 +494,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         raise ValueError("--init starts a new run; --resume continues one: give one of them")
     if lr is not None and not (math.isfinite(lr) and lr > 0):
         raise ValueError(f"--lr must be a positive number, got {lr}")
+    if precise_bn_windows is not None and precise_bn_windows < 0:
+        raise ValueError(f"--precise-bn must be a number of windows >= 0, got {precise_bn_windows}")
     if clip_grad is not None and not (math.isfinite(clip_grad) and clip_grad > 0):
         raise ValueError(f"--clip-grad must be a positive norm, got {clip_grad}")
     init_ckpt = None if init is None else _init_checkpoint(init, spec_name)
@@ -447,6 +517,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             raise ValueError(f"{run}: trained with --ema {config.get('ema')}; a resumed run keeps its average")
         if autocast is not None and autocast != config.get("autocast"):
             raise ValueError(f"{run}: trained with --autocast {config.get('autocast')}; a resumed run keeps its arithmetic")
+        if precise_bn_windows is not None and precise_bn_windows != config.get("precise_bn", 0):
+            raise ValueError(f"{run}: trained with --precise-bn {config.get('precise_bn', 0)}; a resumed run keeps its own")
         if clip_grad is not None and clip_grad != config.get("clip_grad"):
             raise ValueError(f"{run}: trained with --clip-grad {config.get('clip_grad')}; a resumed run keeps its clipping")
         if coarse_weight is not None and coarse_weight != config.get("coarse_weight", 0.0):
@@ -475,6 +547,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "regularizer_weight": tr.regularizer_weight, "lr_schedule": lr_schedule or "constant",
             "ema": ema, "autocast": autocast, "val_fraction": val_fraction, "val_every": val_every,
             "clip_grad": clip_grad,
+            "precise_bn": PRECISE_BN_WINDOWS if precise_bn_windows is None else precise_bn_windows,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "fireflies": fireflies, "test_data": os.path.abspath(test_data) if test_data else None,
             "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
@@ -538,24 +611,39 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         dist.barrier()      # the run folder exists before anyone may write into it
         forward = DistributedDataParallel(model, device_ids=[torch.cuda.current_device()] if device == "cuda" else None)
 
+    calibrated = {"step": None, "net": None, "bn": None}    # precise_bn of the weights at that step
+
     def save():
         if rank != 0:
             return
         runs.save_checkpoint(run, {"model": model.state_dict(), "optimizer": opt.state_dict(),
                                    "step": step, "epoch": epoch, "pos": pos, "elapsed": elapsed,
                                    "torch_rng": torch.get_rng_state(), "spec": spec.name,
-                                   "ema": ema_state, "ema_updates": ema_updates})
+                                   "ema": ema_state, "ema_updates": ema_updates,
+                                   "bn": calibrated["bn"] if calibrated["step"] == step else None})
 
     def scored():
-        """The model validation scores: the weights' average where the run keeps one."""
-        if ema_model is None:
-            return model
-        ema_model.load_state_dict(ema_state)
-        return ema_model
+        """The model validation scores and export ships: the weights' average where the run
+        keeps one, with BatchNorm statistics from :func:`precise_bn` where the run asks for them."""
+        net = model
+        if ema_model is not None:
+            ema_model.load_state_dict(ema_state)
+            net = ema_model
+        if not config.get("precise_bn"):
+            return net
+        if calibrated["step"] != step:
+            cal = precise_bn(net, train_set, protocol, config["precise_bn"], bs, device)
+            calibrated.update(step=step, net=cal, bn={k: v.detach().clone() for k, v in cal.state_dict().items()
+                                                      if k.endswith(BN_STATS)})
+        return calibrated["net"]
 
-    # With an average, each validation also scores the live weights ("live_*" metrics): one run
-    # then shows what the average earns at every point of its curve.
-    val_kw["live"] = model if ema_model is not None else None
+    def live():
+        """With an average, each validation also scores the live weights ("live_*" metrics), with
+        their own calibrated statistics: one run then shows what the average earns at every
+        point of its curve."""
+        if ema_model is None:
+            return None
+        return precise_bn(model, train_set, protocol, config.get("precise_bn", 0), bs, device)
 
     budget_s = None if config["minutes"] is None else 60.0 * config["minutes"]
     bar = None
@@ -626,7 +714,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             if config["val_every"] and step % config["val_every"] == 0:
                 if rank == 0:
                     _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]),
-                              interval=interval.take(), **val_kw)
+                              interval=interval.take(), live=live(), **val_kw)
                 save()
             if shared[1] > 0:
                 stopped = True
@@ -637,13 +725,14 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             epoch += 1
             if not config["val_every"] and rank == 0:
                 _validate(run, scored(), val_set, protocol, step, epoch, elapsed, float(shared[0]),
-                          interval=interval.take(), **val_kw)
+                          interval=interval.take(), live=live(), **val_kw)
             save()
     if bar is not None:
         bar.close()
+    final = scored() if rank == 0 else None     # before the save, which keeps its statistics
     save()
-    row = {} if rank != 0 else _validate(run, scored(), val_set, protocol, step, epoch, elapsed, None, final=True,
-                                         interval=interval.take(), **val_kw)
+    row = {} if rank != 0 else _validate(run, final, val_set, protocol, step, epoch, elapsed, None, final=True,
+                                         interval=interval.take(), live=live(), **val_kw)
     if world > 1:
         # Every process leaves the group together: a process that exits with gloo's threads
         # still running aborts ("terminate called without an active exception", exit -6).
@@ -773,6 +862,6 @@ def main(args) -> int:
                 max_sequences=args.max_sequences, test_data=args.test, device=args.device,
                 lr_schedule=args.lr_schedule, lr=args.lr, init=args.init, fireflies=args.fireflies, ema=args.ema,
                 loader_workers=args.loader_workers, cache_dtype=args.cache_dtype, cache_dir=args.cache_dir, autocast=args.autocast,
-                coarse_weight=args.coarse_weight, clip_grad=args.clip_grad)
+                coarse_weight=args.coarse_weight, clip_grad=args.clip_grad, precise_bn_windows=args.precise_bn)
     print(json.dumps(row, indent=2))
     return 0
