@@ -274,13 +274,14 @@ def slice_rows(grid: torch.Tensor, index: torch.Tensor, weight: torch.Tensor, n,
     if normalization == "cell":
         # One division of every row by its W gives both: an empty cell holds S = 0 and W = 0, so
         # S / max(W, floor) is M there and 0 where empty, and W / max(W, floor) is the indicator
-        # [W > 0] (see CELL_FLOOR). A mask, a cast and a concatenation over the grid's rows
-        # (3.8 M at 720p) cost onnxruntime about 40 ms more, its elementwise ops being slow there.
+        # [W > 0] (see CELL_FLOOR), without a mask, a cast and a concatenation over all the
+        # grid's rows (3.8 M at 720p), which onnxruntime's CPU kernels run slowly.
         grid = grid / grid[:, c:].clamp(min=CELL_FLOOR)
     # ONNX Gather of rows, then channels first: the corner weights then broadcast over a
     # contiguous H·W span (onnxruntime multiplies a trailing size-1 axis 4 floats per call, and
-    # this order also ends without a transpose): 0.83x the slice-stage time of the channels-last
-    # product at 720p in onnxruntime, torch eager alike (docs/results/nbg-splat).
+    # this order also ends without a transpose). With the division above, the slice stage takes
+    # 0.62-0.64x its earlier time in onnxruntime at 720p, torch eager's whole graph within ±7%
+    # (docs/results/nbg-splat: slice.sh, slice_torch.py).
     taps = grid.index_select(0, index).reshape(n, 8, -1, c + 1).transpose(2, 3)
     acc = (taps * weight.reshape(n, 8, 1, -1)).sum(dim=1)  # (N, C+1, H·W)
     out = acc[:, :c] / acc[:, c:].clamp(min=SLICE_FLOOR)
