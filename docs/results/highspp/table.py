@@ -15,7 +15,7 @@ HERE = Path(__file__).resolve().parent
 RESULTS = HERE.parent
 RUNS = ("wskpn-mr", "nbg-7l-3g")
 SETS = ("heldout-room_window", "heldout-lamp_occluder", "long-slow", "long-medium", "long-fast")
-SHOWN = ("wskpn-6e", "wskpn-3", "nbg-2l-3g", "svgf", "oidn-fast", "oidn-high")
+SHOWN = ("wskpn-6e", "wskpn-3", "nbg-2l-3g", "anf-s", "svgf", "oidn-fast", "oidn-high")
 
 
 def load(path: Path) -> dict:
