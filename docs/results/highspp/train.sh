@@ -5,11 +5,11 @@
 #
 # Usage: bash docs/results/highspp/train.sh MINUTES [SPEC...]   (default: both specs)
 #   Every spec trains at once, one thread each (their steps are small, so two processes on two
-#   cores get more done than one after the other on two threads; measured: README.md here).
+#   cores should get more done than one after the other on two threads; not measured here).
 #   STEPS="N ...": each spec's cosine length, in the order of the specs (plan them to end inside
-#   MINUTES: the README gives seconds a step; default 12000 9500, for 52 minutes on a 2-core EPYC);
-#   SHARDS="34 35 36 37": the shards of data/train-256 that must be there (rendered by
-#   docs/results/scale/sitting.sh or docs/render-queue.sh); the loader reads every finished one.
+#   MINUTES: the README gives seconds a step; default 12000 9500, for 52 minutes on a 2-core EPYC).
+#   Data: every finished shard under data/train-256 (rendered by docs/results/scale/sitting.sh or
+#   docs/render-queue.sh; the 2026-12-05 runs read shards 34-37).
 # Writes docs/results/highspp/<spec> (the run folder, small enough to commit), then scores it with
 # score.sh (which a finished run can be given again alone).
 set -euo pipefail
