@@ -295,3 +295,75 @@ def test_a_weight_on_another_state_is_refused():
     assert "alpha = 0.5" in text
     with pytest.raises(SpecError, match="only on \\[\\[state\\]\\] 'embed'"):
         build_model(parse_spec(text, "bad.toml"))
+
+
+def _anf_pair():
+    """anf-s and anf-sd (the demodulating spec) with the same seeded weights."""
+    torch.manual_seed(5)
+    plain = build_model(load_spec("anf-s")).eval()
+    demod = build_model(load_spec("anf-sd")).eval()
+    demod.load_state_dict(plain.state_dict())          # the same weights fit: --init anf-s -> anf-sd
+    return plain, demod
+
+
+def test_demodulation_keeps_a_texture_the_plain_kernels_blur():
+    """Constant irradiance under a checkerboard albedo: the demodulating spec filters a constant
+    and re-modulates it, so it returns the texture exactly whatever its weights; the same
+    weights on the radiance average the checks into each other."""
+    plain, demod = _anf_pair()
+    feeds = example_inputs(demod, 1, 24, 32, seed=6, spp=2)
+    yy, xx = np.meshgrid(np.arange(24), np.arange(32), indexing="ij")
+    albedo = np.where((yy // 2 + xx // 2) % 2, 0.8, 0.2)[None, None].repeat(3, axis=1).astype(np.float32)
+    feeds["albedo"] = albedo
+    feeds["emissive"] = np.zeros_like(feeds["emissive"])
+    feeds["color"] = (0.7 * (albedo + 1e-2)).astype(np.float32)       # ALBEDO_EPS
+    feeds["history"] = np.zeros_like(feeds["history"])
+    t = {k: torch.from_numpy(v) for k, v in feeds.items()}
+    with torch.no_grad():
+        out = demod(*[t[n] for n in demod.input_names])[0].numpy()
+        blur = plain(*[t[n] for n in plain.input_names])[0].numpy()
+    np.testing.assert_allclose(out, feeds["color"], rtol=1e-5)
+    assert np.abs(blur - feeds["color"]).mean() > 0.05 * feeds["color"].mean()
+
+
+def test_demodulation_by_white_albedo_is_the_plain_model():
+    """With albedo 1 everywhere demodulating divides by a constant the linear kernels carry
+    through: the output is anf-s's, the radiance and output states 1 / (1 + ε) of anf-s's."""
+    plain, demod = _anf_pair()
+    feeds = example_inputs(demod, 2, 20, 24, seed=7, spp=3)
+    feeds["albedo"] = np.ones_like(feeds["albedo"])
+    t = {k: torch.from_numpy(v) for k, v in feeds.items()}
+    # the demodulating model's radiance and output states hold irradiance
+    td = {**t, **{k: t[k] / (1 + 1e-2) for k in ("prev_radiance", "prev_output")}}
+    with torch.no_grad():
+        out = demod(*[td[n] for n in demod.input_names])
+        ref = plain(*[t[n] for n in plain.input_names])
+    torch.testing.assert_close(out[0], ref[0], rtol=2e-5, atol=1e-6)
+    torch.testing.assert_close(out[2] * (1 + 1e-2), ref[2], rtol=2e-5, atol=1e-6)     # next_radiance
+
+
+def test_dark_albedo_bounds_the_irradiance_of_black_pixels():
+    from mcdenoise.runtime.inputs import ALBEDO_EPS
+    from mcdenoise.training.models.anf import DARK_ALBEDO
+    from mcdenoise.training.models.common import dark_albedo
+
+    a = torch.tensor([0.0, 0.01, 0.05, 0.1, 0.3, 1.0]).reshape(1, 1, 6, 1).expand(1, 3, 6, 1)
+    m = dark_albedo(a, DARK_ALBEDO)
+    assert float((1.0 / (m + ALBEDO_EPS)).max()) <= 1.0 / DARK_ALBEDO    # not 1 / ALBEDO_EPS = 100x
+    assert bool((m[0, 0, 1:4, 0] < m[0, 0, 0:3, 0]).all())        # from 1 at black down to dark
+    torch.testing.assert_close(m[:, :, 3:], a[:, :, 3:])          # exactly the albedo from dark up
+    torch.testing.assert_close(m[:, :, 0], torch.ones(1, 3, 1))   # a miss: by 1, as the plain model
+    # continuous at dark: a hair below it is a hair below the albedo
+    near = dark_albedo(torch.full((1, 3, 1, 1), DARK_ALBEDO * 0.999), DARK_ALBEDO)
+    assert abs(float(near[0, 0, 0, 0]) - DARK_ALBEDO) < 2e-3
+
+
+def test_an_anf_spec_reads_color_then_optionally_albedo_and_emissive():
+    from mcdenoise.training.specs import SpecError, parse_spec
+
+    text = load_spec("anf-sd").path.read_text()
+    for layers in ('["color", "normal"]', '["albedo", "color"]', '["color", "emissive"]'):
+        bad = text.replace('layers = ["color", "albedo", "emissive"]', f"layers = {layers}")
+        assert bad != text
+        with pytest.raises(SpecError, match="reads \\[inputs\\].layers = one of"):
+            build_model(parse_spec(bad, "bad.toml"))

@@ -84,7 +84,11 @@ def test_init_starts_a_new_run_from_another_runs_weights(tiny_dataset, tmp_path,
     assert cfg["init"]["chain_steps"] == 2     # b took none of its own, a took 2
     out = tmp_path / "d"
     assert main(["train", "nbg-2l-1g", "--data", tiny_dataset, "--out", str(out), "--init", str(tmp_path / "a")]) == 2
-    assert "trained wskpn-3, not nbg-2l-1g" in capsys.readouterr().err and not out.exists()
+    assert "trained wskpn-3 (type 'wskpn'), not a spec of type 'nbg'" in capsys.readouterr().err
+    assert not out.exists()
+    # another spec of the same type starts from it only where the weights fit (anf-s -> anf-sd do)
+    assert main(["train", "wskpn-6", "--data", tiny_dataset, "--out", str(out), "--init", str(tmp_path / "a")]) == 2
+    assert "its weights do not fit spec wskpn-6" in capsys.readouterr().err and not out.exists()
     assert main(["train", "wskpn-3", "--data", tiny_dataset, "--out", str(tmp_path / "c"), "--resume",
                  "--init", str(tmp_path / "a")]) == 2
     assert "give one of them" in capsys.readouterr().err

@@ -246,8 +246,9 @@ def add_arguments(p):
     p.add_argument("--steps", type=int, default=None, help="optimiser steps (default: spec)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out exactly")
     p.add_argument("--init", default=None, metavar="RUN",
-                   help="start a new run from RUN's weights and optimiser state (same spec), e.g. to "
-                        "continue training on shards rendered in a later sitting; its steps count from 0")
+                   help="start a new run from RUN's weights and optimiser state (its spec, or another spec "
+                        "of the same type whose weights fit, e.g. anf-s -> anf-sd), e.g. to continue training "
+                        "on shards rendered in a later sitting; its steps count from 0")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--crop", type=int, default=None)
     p.add_argument("--window", type=int, default=None,
@@ -588,10 +589,7 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         step, epoch, pos, elapsed = ckpt["step"], ckpt["epoch"], ckpt["pos"], ckpt["elapsed"]
         torch.set_rng_state(ckpt["torch_rng"].cpu())
     elif init_ckpt is not None:
-        try:
-            model.load_state_dict(init_ckpt["model"])
-        except RuntimeError as e:
-            raise ValueError(f"--init {init}: its weights do not fit spec {spec.name} ({str(e).splitlines()[0]})") from None
+        model.load_state_dict(init_ckpt["model"])      # fits: _init_checkpoint tried it
         opt.load_state_dict(init_ckpt["optimizer"])
     # The average starts from the weights the run starts from: a resumed run's own average, an
     # --init run's source average where it kept one.
@@ -742,19 +740,29 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
 
 
 def _init_checkpoint(init: str, spec_name: str) -> dict:
-    """The checkpoint of run folder ``init``, checked to be of spec ``spec_name``, with
+    """The checkpoint of run folder ``init``, checked to be of spec ``spec_name`` or another spec of
+    its model type, with
     ``chain_steps``: the steps it and the runs it started from took together."""
     import torch
-    from mcdenoise.training.specs import load_spec
+    from mcdenoise.training.specs import build_model, load_spec
 
     src = Path(init)
     if not (src / runs.CHECKPOINT_FILE).exists():
         raise FileNotFoundError(f"--init {src}: no {runs.CHECKPOINT_FILE} there")
-    want = load_spec(spec_name).name
+    want = load_spec(spec_name)
     cfg = json.loads((src / runs.CONFIG_FILE).read_text())
-    if cfg["spec"] != want:
-        raise ValueError(f"--init {src}: that run trained {cfg['spec']}, not {want}")
+    # Another spec of the same type may start from it (anf-s -> anf-sd: the same weights on
+    # another input path); whether the weights fit is checked when they are loaded.
+    have = load_spec(str(src / runs.SPEC_FILE)) if (src / runs.SPEC_FILE).exists() else None
+    if cfg["spec"] != want.name and (have is None or have.type != want.type):
+        raise ValueError(f"--init {src}: that run trained {cfg['spec']}"
+                         f"{f' (type {have.type!r})' if have else ''}, not a spec of type {want.type!r} "
+                         f"like {want.name}")
     ckpt = torch.load(src / runs.CHECKPOINT_FILE, weights_only=False, map_location="cpu")
+    try:        # before the new run's folder exists
+        build_model(want).load_state_dict(ckpt["model"])
+    except RuntimeError as e:
+        raise ValueError(f"--init {init}: its weights do not fit spec {want.name} ({str(e).splitlines()[0]})") from None
     ckpt["chain_steps"] = ckpt["step"] + ((cfg.get("init") or {}).get("chain_steps") or 0)
     return ckpt
 

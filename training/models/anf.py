@@ -33,6 +33,16 @@ weight (``spp / (spp + history_spp)`` for a frame of known spp, else ``alpha``;
 has only seen a few hundred steps holds on to stale content at 4 spp
 (docs/results/long/anf_lambda_probe.txt).  Without it the graph is the paper's.
 
+Albedo demodulation (not in the paper): a spec whose ``[inputs].layers`` are ``["color",
+"albedo"]`` (optionally with ``"emissive"``) filters the irradiance colour / (albedo + ε) instead
+of the radiance, with the albedo clamped to [0, 1], lights demodulated by 1 (as WSKPN and NBG
+do) and albedos below :data:`DARK_ALBEDO` blended toward 1
+(:func:`training.models.common.modulation_albedo`), and re-modulates the
+output; the ``radiance`` and ``output`` states then hold irradiance.  The paper's network keeps
+texture through its affinity features; the CPU-sized anf-s, after a few hundred steps, did not:
+on the long procedural sets it blurred every checkerboard and barely gained from 1 to 8 spp
+(docs/results/anf-demod).  Without these layers the graph is the paper's.
+
 The kernel size is the run-time setting ``kernel_size`` (§3.4, Fig. 7; an int64 scalar input,
 the same for the spatial and the temporal kernels): the taps are a TorchScript loop, which the
 exporter writes as an ONNX ``Loop``, so one file runs at every size without re-export.
@@ -46,7 +56,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from mcdenoise.runtime.contract import HISTORY, SAMPLES_INPUT, state_weight_name
-from mcdenoise.training.models.common import SampleEmbedding, bind_inputs, conv3, eval_copy
+from mcdenoise.training.models.common import (SampleEmbedding, bind_inputs, conv3, demodulate, eval_copy,
+                                              modulation_albedo, remodulate)
 from mcdenoise.training.models.wskpn import pad_to_multiple
 from mcdenoise.training.specs import ModelSpec, SpecError, register
 
@@ -61,6 +72,13 @@ STAGES = ("embedding", "unet", "kernels")
 #: errors (an untrained model with perturbed weights gave onnxruntime and torch outputs 3x
 #: apart); bounded, such a pixel gets the mean of its taps, the same in every runtime.
 AFFINITY_BOUND = 20.0
+#: The pixel layers an ANF spec may read: the radiance it filters, then optionally the albedo
+#: (and emissive fraction) it demodulates that radiance by (see the module docstring).
+ANF_LAYERS = (("color",), ("color", "albedo"), ("color", "albedo", "emissive"))
+#: A demodulating ANF blends albedos below this toward 1 (:func:`training.models.common.dark_albedo`):
+#: the kernels are not trained to keep misses, mirrors and glass (albedo 0, irradiance 100x their
+#: radiance) apart from their neighbours.
+DARK_ALBEDO = 0.1
 #: The run-time kernel-size setting's name.
 KERNEL_SIZE = "kernel_size"
 
@@ -201,7 +219,8 @@ class Kernels(nn.Module):
 
     def forward(self, params, e, color, prev_embed, prev_radiance, prev_features, prev_output, history, size,
                 weight=None):
-        """params: the U-Net's output; e (N, E, H, W); color (N, 3, H, W) linear HDR (exposed);
+        """params: the U-Net's output; e (N, E, H, W); color (N, 3, H, W) linear HDR (exposed), the
+        radiance or, in a demodulating spec, the irradiance;
         prev_*: the driver's reprojected state (zeros without history); history (N, 1, H, W);
         size: int64 scalar kernel size; weight: None, or (N, 1, 1, 1) in [0, 1], the current
         frame's least weight in the accumulation (λ <= 1 − weight).  Returns (output,
@@ -265,8 +284,14 @@ class ANF(nn.Module):
         t = bind_inputs(self, inputs)
         e = self.embedding(t[SAMPLES_INPUT])
         params = self.unet(e, t["prev_embed"], t[HISTORY])
-        out = self.kernels(params, e, t["color"], t["prev_embed"], t["prev_radiance"], t["prev_features"],
+        color, modulation = t["color"], None
+        if "albedo" in t:
+            modulation = modulation_albedo(t["albedo"], t.get("emissive"), clamp=True, dark=DARK_ALBEDO)
+            color = demodulate(color, modulation)
+        out = self.kernels(params, e, color, t["prev_embed"], t["prev_radiance"], t["prev_features"],
                            t["prev_output"], t[HISTORY], t[KERNEL_SIZE], t.get(state_weight_name("embed")))
+        if modulation is not None:
+            out = (remodulate(out[0], modulation),) + tuple(out[1:])
         return out
 
     def deploy(self) -> "ANF":
@@ -280,9 +305,10 @@ def build_anf(spec: ModelSpec) -> ANF:
     p = spec.params_as(ANFParams)
     if tuple(spec.stages) != STAGES:
         raise SpecError(f"{where}: stages must be {list(STAGES)} for type 'anf', got {list(spec.stages)}")
-    if tuple(spec.inputs.layers) != ("color",) or not spec.inputs.samples:
-        raise SpecError(f"{where}: type 'anf' reads [inputs].layers = [\"color\"] (the radiance it filters) "
-                        "and per-sample groups ([inputs].samples)")
+    if tuple(spec.inputs.layers) not in ANF_LAYERS or not spec.inputs.samples:
+        raise SpecError(f"{where}: type 'anf' reads [inputs].layers = one of {[list(x) for x in ANF_LAYERS]} "
+                        "(the radiance it filters, and the albedo it demodulates it by) and per-sample groups "
+                        "([inputs].samples)")
     if [(s.name, s.channels) for s in spec.state] != list(state_channels(p).items()):
         raise SpecError(f"{where}: [[state]] must be {list(state_channels(p).items())} for type 'anf'")
     if [s.name for s in spec.setting] != [KERNEL_SIZE] or spec.setting[0].step % 2 or spec.setting[0].min % 2 == 0:

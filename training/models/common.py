@@ -3,7 +3,8 @@
 Defined here once so that every model demodulates, accumulates and builds its network input
 the same way (STYLE: no magic constant in ten files):
 
-* :data:`ALBEDO_EPS` (from :mod:`runtime.inputs`) and :func:`demodulate` / :func:`remodulate`: albedo (de)modulation;
+* :data:`ALBEDO_EPS` (from :mod:`runtime.inputs`), :func:`demodulate` / :func:`remodulate` and
+  :func:`modulation_albedo`: albedo (de)modulation;
 * :func:`temporal_accumulate` (:func:`runtime.temporal.accumulate`, defined there for the driver
   too) and :class:`TemporalStage`: the exponential moving average with the driver's
   reprojected history (WSKPN §4.1, NBG §4.6: decay 0.2), for models that accumulate in-graph;
@@ -53,14 +54,27 @@ def emitter_albedo(albedo: torch.Tensor, emissive: torch.Tensor | None) -> torch
     return albedo + e * (1.0 - albedo)
 
 
+def dark_albedo(albedo: torch.Tensor, dark: float) -> torch.Tensor:
+    """``albedo`` (N, 3, H, W) >= 0 blended toward 1 where it is dark: m = d·albedo + (1 − d),
+    d = min(max_c albedo / ``dark``, 1).  Misses, mirrors and glass have an albedo of 0, so
+    demodulating by it gives colour / ALBEDO_EPS, 100x their radiance; a filter whose
+    weights do not know that spreads it into its neighbours as a halo (docs/results/anf-demod).
+    With this the irradiance is colour / (albedo + ε) from ``dark`` up, and below it goes
+    down to the colour itself at an albedo of 0: at most 1 / ``dark`` times the colour."""
+    d = (albedo.amax(dim=1, keepdim=True) / dark).clamp(max=1.0)
+    return albedo * d + (1.0 - d)
+
+
 def modulation_albedo(albedo: torch.Tensor, emissive: torch.Tensor | None = None,
-                      clamp: bool = False) -> torch.Tensor:
+                      clamp: bool = False, dark: float = 0.0) -> torch.Tensor:
     """The albedo a model (de)modulates by, (N, 3, H, W): ``albedo`` clamped to [0, 1] when
     ``clamp`` (Mitsuba's albedo AOV of a rough conductor reaches 58, and re-modulating a
-    filtered irradiance by it turns a firefly into a blotch: docs/results/scale), then
-    :func:`emitter_albedo` with ``emissive``. With neither it is ``albedo`` itself, as the
-    models without these options were trained."""
-    return emitter_albedo(albedo.clamp(0.0, 1.0) if clamp else albedo, emissive)
+    filtered irradiance by it turns a firefly into a blotch: docs/results/scale), blended
+    toward 1 below ``dark`` when it is > 0 (:func:`dark_albedo`), then :func:`emitter_albedo`
+    with ``emissive``. With none of them it is ``albedo`` itself, as the models without these
+    options were trained."""
+    m = albedo.clamp(0.0, 1.0) if clamp else albedo
+    return emitter_albedo(dark_albedo(m, dark) if dark > 0 else m, emissive)
 
 
 def remodulate(irradiance: torch.Tensor, albedo: torch.Tensor) -> torch.Tensor:
