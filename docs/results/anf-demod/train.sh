@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Issue 16: does ANF keep texture when its kernels filter albedo-demodulated irradiance?
+# An A/B from the shipped anf-s weights (docs/results/anf/run, 319 steps), on the same data, at the
+# same time, one thread each:
+#   anf-s-ft  anf-s trained on (the control: what more steps alone buy);
+#   anf-sd    anf-sd (models_spec/anf-sd.toml: the same network, the kernels on colour / albedo)
+#             started from the same weights (--init takes a run of another spec of its type).
+# Usage: bash docs/results/anf-demod/train.sh MINUTES
+# Data: data/curves-train (all 24 scenes; anf-s saw 9 of them), data/curves-test for the
+# validation curve; both rendered here if missing (the anf-s card's commands: about 12 minutes
+# with --workers 2 on this 2-core VM, 8 for curves-test on one).
+# Writes docs/results/anf-demod/<run> (small: commit them) and <run>.log; score with score.sh.
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+minutes=$1
+out=docs/results/anf-demod
+[ -f data/curves-test/manifest.json ] || mcdenoise render --out data/curves-test --scenes 4 --frames 8 --spp 8 \
+  --ref-spp 512 --size 128x128 --seed 11 --enclosed 0.5 < /dev/null
+[ -f data/curves-train/manifest.json ] || mcdenoise render --out data/curves-train --scenes 24 --frames 8 --spp 8 \
+  --ref-spp 256 --size 128x128 --seed 10 --enclosed 0.5 --workers 2 < /dev/null
+pids=()
+for pair in "anf-s anf-s-ft" "anf-sd anf-sd"; do
+  read -r spec run <<< "$pair"
+  # The spec's [train] otherwise (Eq. 9's loss, lr 5e-4 constant, batch 4 of 8-frame windows,
+  # 64x64 crops, S from 1, 2, 4, 8); the seed differs from the first run's 0 so that the
+  # continued runs draw new crops.
+  mcdenoise train "$spec" --data data/curves-train --out "$out/$run" --init docs/results/anf/run \
+    --minutes "$minutes" --val-every "${VAL_EVERY:-50}" --test data/curves-test --threads 1 --seed 1 \
+    --quiet > "$out/$run.log" 2>&1 &
+  pids+=($!)
+done
+for p in "${pids[@]}"; do wait "$p"; done
+echo "trained: $out/anf-s-ft $out/anf-sd; next: bash $out/score.sh"
