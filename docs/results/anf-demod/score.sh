@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Scores train.sh's two runs (anf-s-ft, anf-sd) through the runtime API, with history:
-#   - data/curves-test sequences at 1 and 4 spp (warm-up 2, as the anf-s card), and its stills
-#     (first frames) at 1, 2, 4, 8 spp (issue 15: every model improves monotonically with spp);
+#   - data/curves-test sequences at 1 and 4 spp (warm-up 2, as the anf-s card), and the stills
+#     (first frames) of curves-test and long-slow at 1, 2, 4, 8 spp (issue 15: every model
+#     improves monotonically with spp; the shipped anf-s's are in docs/results/stills-spp);
 #   - held-out sets (never trained on) at 1, 4, 8 spp after 8 warm-up frames.
 # Usage: bash docs/results/anf-demod/score.sh [RUN...]   (default: both runs)
 #   SETS="..." held-out sets (default: long-slow heldout-room_window heldout-lamp_occluder, those
 #   rendered under data/; docs/render-queue.sh renders them); SPPS="..." their spp (default 1 4 8).
-# Writes docs/results/anf-demod/<run>/{curves-test,stills-curves-test}-<spp>spp.json and
+# Writes docs/results/anf-demod/<run>/{curves-test,stills-<set>}-<spp>spp.json and
 # docs/results/anf-demod/<set>/<run>-<spp>spp.json; python docs/results/anf-demod/table.py makes table.md.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -20,9 +21,12 @@ for r in "${runs[@]}"; do
     mcdenoise evaluate "$f" --no-oidn --data data/curves-test --spp $spp --warmup 2 --threads "$(nproc)" \
       --json "$r/curves-test-${spp}spp.json"
   done
-  for spp in 1 2 4 8; do
-    mcdenoise evaluate "$f" --no-oidn --data data/curves-test --spp $spp --stills --threads "$(nproc)" \
-      --json "$r/stills-curves-test-${spp}spp.json"
+  for set in curves-test long-slow; do
+    [ -f "data/$set/manifest.json" ] || continue
+    for spp in 1 2 4 8; do
+      mcdenoise evaluate "$f" --no-oidn --data "data/$set" --spp $spp --stills --threads "$(nproc)" \
+        --json "$r/stills-$set-${spp}spp.json"
+    done
   done
   for set in ${SETS:-long-slow heldout-room_window heldout-lamp_occluder}; do
     [ -f "data/$set/manifest.json" ] || { echo "score.sh: data/$set not rendered, skipped" >&2; continue; }
@@ -32,11 +36,5 @@ for r in "${runs[@]}"; do
         --json "$out/$set/$name-${spp}spp.json"
     done
   done
-done
-# the shipped anf-s's stills (its sequences are committed: docs/results/anf, long, highspp)
-mkdir -p "$out/baseline"
-for spp in 1 2 4 8; do
-  [ -f "$out/baseline/stills-curves-test-${spp}spp.json" ] || mcdenoise evaluate models/anf-s.onnx --no-oidn \
-    --data data/curves-test --spp $spp --stills --threads "$(nproc)" --json "$out/baseline/stills-curves-test-${spp}spp.json"
 done
 python "$out/table.py" > "$out/table.md"

@@ -7,8 +7,7 @@ Reads only committed evaluations (``mcdenoise evaluate --json``):
   - the runs': <run>/curves-test-<spp>spp.json, <run>/stills-curves-test-<spp>spp.json and
     <set>/<run>-<spp>spp.json here;
   - the shipped models': docs/results/anf/curves-test-<spp>spp.json (anf-s on curves-test),
-    baseline/ here (anf-s's stills), docs/results/highspp/baseline and docs/results/scale/baseline
-    (the others' stills),
+    docs/results/stills-spp/<set>-<spp>.json (stills),
     docs/results/long/<set>/{baseline,wskpn-6e-6}-<spp>spp.json (1 and 4 spp; wskpn-6e-6 is the
     run wskpn-6e was exported from) and docs/results/highspp/<set>-8spp.json (8 spp).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history; sequences after
@@ -59,16 +58,17 @@ def main() -> None:
     print("# ANF on albedo-demodulated irradiance (issue 16): the A/B of train.sh\n")
     print("Made by `python docs/results/anf-demod/table.py` from score.sh's evaluations and the committed")
     print("shipped-model evaluations. PSNR dB / TRMAE, with history, after warm-up.\n")
-    print("## data/curves-test stills (first frames, no history), PSNR dB\n")
-    print("| spp | " + " | ".join(["anf-s (shipped)", "anf-s-ft", "anf-sd", "wskpn-6e", "oidn-high"]) + " |")
-    print("|---:|---:|---:|---:|---:|---:|")
-    for spp in (1, 2, 4, 8):
-        base = shipped([RESULTS / p / f"stills-curves-test-{spp}spp.json"
-                        for p in ("scale/baseline", "highspp/baseline", "anf-demod/baseline")])
-        cells = [base.get("anf-s")] + [run_result(HERE / r / f"stills-curves-test-{spp}spp.json") for r in RUNS]
-        cells += [base.get("wskpn-6e"), base.get("oidn-high")]
-        print(f"| {spp} | " + " | ".join("-" if c is None else f"{c['psnr']:.2f}" for c in cells) + " |")
-    print("\n## Sequences\n")
+    for name in ("curves-test", "long-slow"):
+        print(f"## data/{name} stills (first frames, no history), PSNR dB\n")
+        print("| spp | " + " | ".join(["anf-s (shipped)", "anf-s-ft", "anf-sd", "wskpn-6", "oidn-high"]) + " |")
+        print("|---:|---:|---:|---:|---:|---:|")
+        for spp in (1, 2, 4, 8):
+            base = shipped([RESULTS / "stills-spp" / f"{name}-{spp}.json"])
+            cells = [base.get("anf-s")] + [run_result(HERE / r / f"stills-{name}-{spp}spp.json") for r in RUNS]
+            cells += [base.get("wskpn-6"), base.get("oidn-high")]
+            print(f"| {spp} | " + " | ".join("-" if c is None else f"{c['psnr']:.2f}" for c in cells) + " |")
+        print()
+    print("## Sequences\n")
     print("| set | spp | " + " | ".join(cols) + " |")
     print("|---|---:|" + "---:|" * len(cols))
     for spp in (1, 4):
