@@ -14,7 +14,7 @@ from mcdenoise.runtime.frames import SAMPLE_GROUPS, Frame, FrameError
 from mcdenoise.runtime.inputs import sample_channels, sample_inputs
 from mcdenoise.training.harness import synthetic_frame
 from mcdenoise.training.models import example_inputs
-from mcdenoise.training.models.anf import AFFINITY_BOUND, affinity_sums
+from mcdenoise.training.models.anf import AFFINITY_BOUND, affinity_sums, affinity_sums_eager
 from mcdenoise.training.specs import build_model, load_spec
 
 SPEC = "anf-s"
@@ -48,13 +48,15 @@ def _brute(x, f, g, a, mask, k, dilation, skip_centre):
     return num, den
 
 
+@pytest.mark.parametrize("sums", [affinity_sums, affinity_sums_eager], ids=["script", "eager"])
 @pytest.mark.parametrize("k,dilation,skip", [(3, 1, True), (5, 2, False), (3, 4, True)])
-def test_affinity_sums_equal_the_brute_force_sum(k, dilation, skip):
+def test_affinity_sums_equal_the_brute_force_sum(k, dilation, skip, sums):
+    """Both forms of the one function: TorchScript (exported) and eager (trained)."""
     rng = np.random.default_rng(k + dilation)
     x, f, g = rng.random((2, 3, 9, 11)), rng.normal(size=(2, 4, 9, 11)), rng.normal(size=(2, 4, 9, 11))
     f[0, :, :3] *= 10.0                            # some exponents beyond the bound
     a, mask = rng.random((2, 1, 9, 11)), (rng.random((2, 1, 9, 11)) > 0.3).astype(np.float64)
-    got = affinity_sums(*[torch.from_numpy(v) for v in (x, f, g, a, mask)], torch.tensor(k), dilation, skip, AFFINITY_BOUND)
+    got = sums(*[torch.from_numpy(v) for v in (x, f, g, a, mask)], torch.tensor(k), dilation, skip, AFFINITY_BOUND)
     for gv, want in zip(got, _brute(x, f, g, a, mask, k, dilation, skip)):
         np.testing.assert_allclose(gv.numpy(), want, rtol=1e-12, atol=1e-12)
 
@@ -367,3 +369,16 @@ def test_an_anf_spec_reads_color_then_optionally_albedo_and_emissive():
         assert bad != text
         with pytest.raises(SpecError, match="reads \\[inputs\\].layers = one of"):
             build_model(parse_spec(bad, "bad.toml"))
+
+
+def test_training_mode_runs_the_eager_kernels_to_the_same_output(anf):
+    """Training runs affinity_sums_eager, export and inference the TorchScript form: one model's
+    output is the same in both modes (the only difference between them)."""
+    _, _, model = anf
+    feeds = {k: torch.from_numpy(v) for k, v in example_inputs(model, 2, 20, 22, seed=8, spp=2).items()}
+    with torch.no_grad():
+        ref = model.eval()(*[feeds[n] for n in model.input_names])
+        got = model.train()(*[feeds[n] for n in model.input_names])
+    model.eval()
+    for r, g in zip(ref, got):
+        torch.testing.assert_close(g, r, rtol=1e-5, atol=1e-6)

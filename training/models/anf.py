@@ -121,9 +121,8 @@ def state_channels(p: ANFParams) -> dict[str, int]:
     return {"embed": p.embed_width, "radiance": 3, "features": p.features, "output": 3}
 
 
-@torch.jit.script
-def affinity_sums(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Tensor,
-                  mask: torch.Tensor, size: torch.Tensor, dilation: int, skip_centre: bool, bound: float):
+def affinity_sums_eager(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Tensor,
+                        mask: torch.Tensor, size: torch.Tensor, dilation: int, skip_centre: bool, bound: float):
     """Σ_q w(p, q)·x(q) and Σ_q w(p, q) over the size×size taps q = p + dilation·(i, j) of
     every pixel p, w(p, q) = exp(−min(a(p)‖f(p) − g(q)‖², bound))·mask(q), taps outside the
     frame 0 (``bound``: :data:`AFFINITY_BOUND`; TorchScript takes no module constants).
@@ -153,11 +152,18 @@ def affinity_sums(x: torch.Tensor, f: torch.Tensor, g: torch.Tensor, a: torch.Te
     return num, den
 
 
-def spatial_filter(x, f, a, c, size, dilation: int):
+#: :func:`affinity_sums_eager` as TorchScript: the form the exporter writes as an ONNX ``Loop`` (the
+#: kernel size a run-time input).  Training runs the eager form of the same function, which is
+#: faster through autograd (docs/results/anf-demod/step_time.py).
+affinity_sums = torch.jit.script(affinity_sums_eager)
+
+
+def spatial_filter(x, f, a, c, size, dilation: int, sums=affinity_sums):
     """One spatial kernel of Eq. 4 applied as Eq. 6: (N, 3, H, W) -> (N, 3, H, W); also
-    returns its (numerator, denominator) for Eq. 8's joint normalisation."""
+    returns its (numerator, denominator) for Eq. 8's joint normalisation.  ``sums``:
+    :func:`affinity_sums` or its eager form."""
     ones = torch.ones_like(a)
-    num, den = affinity_sums(x, f, f, a, ones, size, dilation, True, AFFINITY_BOUND)
+    num, den = sums(x, f, f, a, ones, size, dilation, True, AFFINITY_BOUND)
     return num + c * x, den + c
 
 
@@ -226,6 +232,7 @@ class Kernels(nn.Module):
         frame's least weight in the accumulation (λ <= 1 − weight).  Returns (output,
         next_embed, next_radiance, next_features, next_output), output (N, 3, H, W) linear HDR."""
         k, d = self.k, self.d
+        sums = affinity_sums_eager if self.training else affinity_sums
         lam = torch.sigmoid(params[:, -1:])
         if weight is not None:
             lam = torch.minimum(lam, 1.0 - weight)
@@ -239,12 +246,11 @@ class Kernels(nn.Module):
             o = i * (d + 2)
             f, a, c = params[:, o:o + d], params[:, o + d:o + d + 1] ** 2, torch.sigmoid(params[:, o + d + 1:o + d + 2])
             reg = reg + a.pow(2).mean()
-            num, den = spatial_filter(x, f, a, c, size, 2 ** i)
+            num, den = spatial_filter(x, f, a, c, size, 2 ** i, sums)
             if i < k - 1:
                 x = num / (den + EPSILON)
             else:
-                tnum, tden = affinity_sums(prev_output, f, prev_features, b, history, size, 1, False,
-                                           AFFINITY_BOUND)
+                tnum, tden = sums(prev_output, f, prev_features, b, history, size, 1, False, AFFINITY_BOUND)
                 x = (num + tnum) / (den + tden + EPSILON)
                 features = f
         if self.training:
