@@ -45,7 +45,8 @@ on the long procedural sets it blurred every checkerboard and barely gained from
 
 The kernel size is the run-time setting ``kernel_size`` (§3.4, Fig. 7; an int64 scalar input,
 the same for the spatial and the temporal kernels): the taps are a TorchScript loop, which the
-exporter writes as an ONNX ``Loop``, so one file runs at every size without re-export.
+exporter writes as an ONNX ``Loop``, so one file runs at every size without re-export (training
+runs the same function eagerly: :data:`affinity_sums`).
 """
 from __future__ import annotations
 
@@ -230,7 +231,8 @@ class Kernels(nn.Module):
         prev_*: the driver's reprojected state (zeros without history); history (N, 1, H, W);
         size: int64 scalar kernel size; weight: None, or (N, 1, 1, 1) in [0, 1], the current
         frame's least weight in the accumulation (λ <= 1 − weight).  Returns (output,
-        next_embed, next_radiance, next_features, next_output), output (N, 3, H, W) linear HDR."""
+        next_embed, next_radiance, next_features, next_output), output (N, 3, H, W) linear HDR
+        (irradiance in a demodulating spec: :meth:`ANF.forward` re-modulates it)."""
         k, d = self.k, self.d
         sums = affinity_sums_eager if self.training else affinity_sums
         lam = torch.sigmoid(params[:, -1:])
