@@ -752,7 +752,7 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
     want = load_spec(spec_name)
     cfg = json.loads((src / runs.CONFIG_FILE).read_text())
     # Another spec of the same type may start from it (anf-s -> anf-sd: the same weights on
-    # another input path); whether the weights fit is checked when they are loaded.
+    # another input path); whether the weights fit is checked below, by loading them.
     have = load_spec(str(src / runs.SPEC_FILE)) if (src / runs.SPEC_FILE).exists() else None
     if cfg["spec"] != want.name and (have is None or have.type != want.type):
         raise ValueError(f"--init {src}: that run trained {cfg['spec']}"

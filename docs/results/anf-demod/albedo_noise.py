@@ -8,12 +8,15 @@ re-modulation puts it straight into the output.
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 
 import numpy as np
 
 from mcdenoise.training.testsets import at_spp, read_sequences
 
-TEXTURE = 0.05
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from look import textured  # noqa: E402  (this folder's one texture mask)
 
 
 def main() -> None:
@@ -28,10 +31,7 @@ def main() -> None:
     for frames in read_sequences(a.data):
         for fr in frames[:a.frames]:
             full = at_spp(fr, 8).albedo.astype(np.float64)
-            step = np.zeros(full.shape[:2])
-            step[:, :-1] += np.abs(full[:, 1:] - full[:, :-1]).sum(-1)
-            step[:-1] += np.abs(full[1:] - full[:-1]).sum(-1)
-            tex = step > TEXTURE
+            tex = textured(full)
             for s in rows:
                 rel = (np.abs(at_spp(fr, s).albedo - full) / (full + 0.01)).mean(-1)
                 rows[s][0].append(rel.mean())

@@ -17,10 +17,20 @@ import numpy as np
 
 from mcdenoise.runtime.transfer import reinhard_gamma
 from mcdenoise.training.methods import load_method
+from mcdenoise.training.metrics import psnr
 from mcdenoise.training.testsets import at_spp, read_sequences
 
 #: summed absolute albedo step to a neighbour that marks a pixel as textured
 TEXTURE = 0.05
+
+
+def textured(albedo: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose albedo (H, W, 3) changes by over TEXTURE (summed over channels)
+    to the right or below neighbour."""
+    step = np.zeros(albedo.shape[:2])
+    step[:, :-1] += np.abs(albedo[:, 1:] - albedo[:, :-1]).sum(-1)
+    step[:-1] += np.abs(albedo[1:] - albedo[:-1]).sum(-1)
+    return step > TEXTURE
 
 
 def main() -> None:
@@ -41,10 +51,7 @@ def main() -> None:
         f = at_spp(fr, a.spp)
         outs = [m(f) for m in methods]
     alb = f.albedo.astype(np.float64)
-    step = np.zeros(alb.shape[:2])
-    step[:, :-1] += np.abs(alb[:, 1:] - alb[:, :-1]).sum(-1)
-    step[:-1] += np.abs(alb[1:] - alb[:-1]).sum(-1)
-    tex = step > TEXTURE
+    tex = textured(alb)
     tm = lambda x: reinhard_gamma(np.asarray(x, np.float64))     # noqa: E731
     ref = tm(f.reference)
     print(f"# {a.data} sequence {a.sequence} frame {a.frame}, {a.spp} spp, with history; "
@@ -52,9 +59,9 @@ def main() -> None:
     print("| model | PSNR dB | textured | untextured |")
     print("|---|---:|---:|---:|")
     for name, o in zip(a.models, outs):
-        e = ((tm(o) - ref) ** 2).mean(-1)
+        e = ((tm(o) - ref) ** 2).mean(-1)       # metrics.psnr's tonemapped error, per pixel
         db = lambda x: -10 * np.log10(x.mean())       # noqa: E731
-        print(f"| {Path(name).stem} | {db(e):.2f} | {db(e[tex]):.2f} | {db(e[~tex]):.2f} |")
+        print(f"| {Path(name).stem} | {psnr(o, f.reference):.2f} | {db(e[tex]):.2f} | {db(e[~tex]):.2f} |")
     if a.out:
         from PIL import Image
 
