@@ -392,10 +392,13 @@ def reexport(src: str | os.PathLike, out_path: str | os.PathLike, opset: int = D
 
 def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_path: str | os.PathLike) -> Contract:
     """Write the export ``src`` to ``out_path`` with the history weights of the spec at
-    ``spec_path``: its ``[[accumulate]]`` and ``[[state]]`` ``alpha`` / ``history_spp``, rules
-    of the driver. The spec must equal the file's embedded spec in everything else (name,
-    params, inputs, stages, state, training; comments aside), so the contract never describes
-    a graph the file does not hold. Where the graph's inputs stay the same (accumulations) the
+    ``spec_path``: its ``[[accumulate]]`` entries (which of the graph's input layers the driver
+    accumulates, and how) and its ``[[state]]`` ``alpha`` / ``history_spp``, rules of the
+    driver. The spec must equal the file's embedded spec in everything else (params, inputs,
+    stages, state, training; its name and comments aside), so the contract never describes a
+    graph the file does not hold: an accumulated layer is fed under its own input name, so
+    accumulating one more of the model's layers (albedo: docs/results/albedo-history) leaves
+    the graph as it is. Where the graph's inputs stay the same (accumulations) the
     graph and weights are kept byte-equal; a state weight the model is now fed is a new graph
     input, so the model is exported again with the file's weights (:func:`load_exported`).
     The export info records the weights it was trained with.
@@ -411,16 +414,16 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
 
     def rest(spec) -> dict:
         d = spec.to_dict()
-        d.pop("description")
-        d["accumulate"] = [a["layer"] for a in d["accumulate"]]
+        for k in ("name", "description", "accumulate"):
+            d.pop(k)
         d["state"] = [(s["name"], s["channels"]) for s in d["state"]]
         return d
 
     a, b = rest(was), rest(new)
     if a != b:
         keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-        raise ExportError(f"{spec_path}: differs from {src}'s spec in {keys}, not only in its accumulation "
-                          "weights; export the model again from its run folder instead")
+        raise ExportError(f"{spec_path}: differs from {src}'s spec in {keys}, not only in its history "
+                          "rules; export the model again from its run folder instead")
 
     def weights(spec) -> list:
         return ([{"layer": a.layer, "alpha": a.alpha, "history_spp": a.history_spp} for a in spec.accumulate]
@@ -428,7 +431,8 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
 
     info = {**old.export, "protocol_from": {"spec": Path(spec_path).name, "weights": weights(new),
                                             "trained_with": old.export.get("protocol_from", {}).get(
-                                                "trained_with", weights(was) or "its graph's fixed weights")}}
+                                                "trained_with", weights(was) or "its graph's fixed weights"),
+                                            "trained_as": old.export.get("protocol_from", {}).get("trained_as", was.name)}}
     if new.input_names != was.input_names:
         _, model, _ = load_exported(src, new)
         export_model(new, model, out_path, code_hash=old.code_hash, info=info)

@@ -113,4 +113,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    if int(os.environ.get("WORLD_SIZE", "1") or 1) > 1:
+        # A process torchrun started has left its group (training/train.py) and written its
+        # files; the interpreter's teardown can still abort in gloo's threads ("terminate
+        # called without an active exception", exit -6: seen once in CI), so it ends here.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

@@ -34,6 +34,9 @@ def add_arguments(p):
     p.add_argument("--normal", default=None, help="normal image for a plain colour input")
     p.add_argument("--depth", default=None,
                    help="depth image for a plain colour input (one channel: Z, Y or a grey RGB EXR, or a Pf PFM; any unit)")
+    p.add_argument("--emissive", default=None,
+                   help="emissive image for a plain colour input, for models that read it (wskpn-6e): the fraction "
+                        "of each pixel's samples whose first hit is a light, in [0, 1] (one channel, as --depth)")
     p.add_argument("--output", required=True, metavar="DIR", help="folder for denoised EXRs")
     p.add_argument("--png", action="store_true", help="also write tonemapped PNG previews")
     p.add_argument("--no-profile", action="store_true",
@@ -47,7 +50,8 @@ def add_arguments(p):
     add_threads(p)
 
 
-def load_inputs(path: str, albedo: str | None = None, normal: str | None = None, depth: str | None = None):
+def load_inputs(path: str, albedo: str | None = None, normal: str | None = None, depth: str | None = None,
+                emissive: str | None = None):
     """Sequences in the input: a list of (sequence name, [(frame name, loader), ...]).
 
     A folder of frames is one sequence; a folder of sequence folders (what ``mcdenoise
@@ -66,8 +70,8 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None,
         return seqs
     if not os.path.exists(path):
         raise FrameError(f"{path}: no such file or folder")
-    if albedo or normal or depth or path.lower().endswith(".pfm"):
-        return [("", [(Path(path).stem, lambda: read_plain(path, albedo, normal, depth))])]
+    if albedo or normal or depth or emissive or path.lower().endswith(".pfm"):
+        return [("", [(Path(path).stem, lambda: read_plain(path, albedo, normal, depth, emissive))])]
     try:
         read_frame(path, layers=["color"], samples=False)
         return [("", [(Path(path).stem, lambda: read_frame(path, samples=False))])]
@@ -77,7 +81,7 @@ def load_inputs(path: str, albedo: str | None = None, normal: str | None = None,
 
 def run(model: str, input_path: str, output: str, png: bool = False, profile: bool = True,
         threads: int = 0, albedo=None, normal=None, log=print, device: str = "cpu", depth=None,
-        autoexposure: bool = True) -> dict:
+        autoexposure: bool = True, emissive=None) -> dict:
     from mcdenoise.training.methods import PROVIDERS
 
     den = Denoiser.load(model, threads=threads, profile=profile and device == "cpu",
@@ -85,7 +89,7 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
     if device == "cuda" and den.session.get_providers()[0] != "CUDAExecutionProvider":
         raise ValueError(f"{model}: onnxruntime has no CUDA provider here (providers: "
                          f"{', '.join(den.session.get_providers())}); install onnxruntime-gpu")
-    seqs = load_inputs(input_path, albedo, normal, depth)
+    seqs = load_inputs(input_path, albedo, normal, depth, emissive)
     outs, refs = [], []
     n_frames = 0
     for seq_name, items in seqs:
@@ -126,6 +130,7 @@ def run(model: str, input_path: str, output: str, png: bool = False, profile: bo
 def main(args) -> int:
     result = run(args.model, args.input, args.output, png=args.png, profile=not args.no_profile,
                  threads=args.threads, albedo=args.albedo, normal=args.normal, depth=args.depth,
+                 emissive=args.emissive,
                  device=args.device,
                  autoexposure=not args.no_autoexposure)
     if args.json:

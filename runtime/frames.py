@@ -346,7 +346,7 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """A one-channel image as (H, W, 1) float32: a greyscale PFM (``Pf``), or an EXR with a
-    ``Z``, ``depth.Z`` or ``Y`` channel, or R, G, B channels that are equal (a grey image
+    ``Z``, ``depth.Z``, ``Y`` or ``E`` (our frames' emissive layer) channel, or R, G, B channels that are equal (a grey image
     written as RGB)."""
     path = os.fspath(path)
     if path.lower().endswith(".pfm"):
@@ -361,31 +361,38 @@ def read_gray(path: str | os.PathLike) -> np.ndarray:
         chans = f.channels()
     except Exception as e:
         raise FrameError(f"{path}: pixel data cannot be decoded, file truncated or corrupt ({e})") from None
-    for n in ("Z", "depth.Z", "Y"):
+    for n in ("Z", "depth.Z", "Y", "E"):
         if n in chans:
             return _as_float32(path, n, chans[n].pixels)[..., None]
     rgb = read_rgb(path)
     if not (np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2])):
-        raise FrameError(f"{path}: expected one channel (Z, depth.Z or Y, or equal R, G, B), "
+        raise FrameError(f"{path}: expected one channel (Z, depth.Z, Y or E, or equal R, G, B), "
                          f"found different R, G, B")
     return rgb[..., :1].copy()
 
 
 def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None,
-               normal: str | os.PathLike | None = None, depth: str | os.PathLike | None = None) -> Frame:
+               normal: str | os.PathLike | None = None, depth: str | os.PathLike | None = None,
+               emissive: str | os.PathLike | None = None) -> Frame:
     """The Open Image Denoise input convention: a colour image plus optional albedo/normal
-    images of the same size (EXR or PFM), and optionally a depth image (:func:`read_gray`:
-    distance from the camera in any unit, since the models see depth / its per-image maximum;
-    0 on a miss).  Returns a pixel-only :class:`Frame` (no motion: no temporal history)."""
+    images of the same size (EXR or PFM), and optionally one-channel images (:func:`read_gray`)
+    of depth (distance from the camera in any unit, since the models see depth / its
+    per-image maximum; 0 on a miss) and of the emissive layer (the fraction of each pixel's
+    samples whose first hit is a light, in [0, 1]; FrameError outside it).  Returns a
+    pixel-only :class:`Frame` (no motion: no temporal history)."""
     c = read_rgb(color)
     fr = Frame(color=c, path=os.fspath(color), meta={"source": "plain"})
-    for name, p in (("albedo", albedo), ("normal", normal), ("depth", depth)):
+    for name, p in (("albedo", albedo), ("normal", normal), ("depth", depth), ("emissive", emissive)):
         if p is None:
             continue
-        arr = read_gray(p) if name == "depth" else read_rgb(p)
+        arr = read_gray(p) if name in ("depth", "emissive") else read_rgb(p)
         if arr.shape[:2] != c.shape[:2]:
             raise FrameError(f"{p}: {name} image is {arr.shape[1]}x{arr.shape[0]}, colour "
                              f"{color} is {c.shape[1]}x{c.shape[0]}")
+        if name == "emissive" and not ((arr >= 0) & (arr <= 1)).all():
+            bad = arr[~((arr >= 0) & (arr <= 1))]
+            raise FrameError(f"{p}: the emissive image holds the fraction of each pixel's samples that hit "
+                             f"a light, in [0, 1]; found {bad.size} pixel(s) outside it (e.g. {float(bad[0]):g})")
         setattr(fr, name, arr)
     return fr
 

@@ -349,10 +349,34 @@ def test_adopt_protocol_changes_only_the_accumulation_weights(exported, tmp_path
     before, after = onnx.load(str(path)), onnx.load(str(tmp_path / "a.onnx"))
     assert before.graph.SerializeToString() == after.graph.SerializeToString()
     assert C.parse_contract({p.key: p.value for p in after.metadata_props}).spec_toml == fixed.read_text()
-    with pytest.raises(ExportError, match=r"differs from .* in \['name', 'paper', 'params'\]"):
+    with pytest.raises(ExportError, match=r"differs from .* in \['paper', 'params'\]"):
         adopt_protocol(path, tmp_path / "b.onnx", load_spec("wskpn-6").path)
     assert main(["export", str(path), "--out", str(tmp_path / "c.onnx"), "--protocol-from", str(fixed)]) == 0
     assert "alpha 0.5" in capsys.readouterr().out
+
+
+def test_adopt_protocol_accumulates_one_more_layer(exported, tmp_path):
+    """wskpn-6e's file under wskpn-6e-aa's rules (the driver also accumulates the albedo): the
+    graph stays byte-equal, the contract lists both accumulations and says what it was trained
+    as, and the driver then gives what the same weights exported as wskpn-6e-aa give (equal
+    specs but for that, equal seeds), which differs from the file as shipped from frame 2 on."""
+    from mcdenoise.runtime.denoiser import Denoiser
+    from mcdenoise.training.harness import synthetic_frame
+    from mcdenoise.runtime.frames import Frame
+
+    _, _, path, _ = exported["wskpn-6e"]
+    con = adopt_protocol(path, tmp_path / "aa.onnx", load_spec("wskpn-6e-aa").path)
+    assert [a["layer"] for a in con.accumulate] == ["color", "albedo"] and con.spec_name == "wskpn-6e-aa"
+    assert con.export["protocol_from"]["trained_as"] == "wskpn-6e"
+    assert onnx.load(str(path)).graph.SerializeToString() == onnx.load(str(tmp_path / "aa.onnx")).graph.SerializeToString()
+    dens = [Denoiser.load(p, log=lambda m: None) for p in (tmp_path / "aa.onnx", exported["wskpn-6e-aa"][2], path)]
+    for t in range(2):
+        frame = synthetic_frame(24, 20, t, spp=2)
+        frame["albedo"] = frame["albedo"] * (1.0 + 0.5 * t)      # a layer that changes: its history counts
+        adopted, built, shipped = (d(Frame(**{k: (v.copy() if hasattr(v, "copy") else v) for k, v in frame.items()}))
+                                   for d in dens)
+        np.testing.assert_allclose(adopted, built, rtol=1e-5, atol=1e-6)
+        assert (np.abs(adopted - shipped).max() > 1e-4) == (t > 0)
 
 
 def test_a_fed_state_weight_is_declared_and_checked(exported):

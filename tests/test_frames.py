@@ -146,6 +146,28 @@ def test_plain_oidn_style_inputs(tmp_path):
         F.read_plain(tmp_path / "color.exr", tmp_path / "small.exr")
 
 
+def test_plain_emissive_image(tmp_path):
+    """The emissive layer of a plain input (models that read it: wskpn-6e): a one-channel image,
+    an EXR E channel as our frames store it or a grey RGB EXR; a value outside [0, 1] (not a
+    fraction of samples) is refused by name."""
+    import OpenEXR
+
+    rng = np.random.default_rng(3)
+    col = rng.random((5, 6, 3), dtype=np.float32)
+    e = (rng.random((5, 6)) < 0.3).astype(np.float32)
+    W.write_rgb(tmp_path / "color.exr", col)
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"E": e}).write(str(tmp_path / "e.exr"))
+    W.write_rgb(tmp_path / "grey.exr", np.repeat(e[..., None], 3, axis=-1))
+    for name in ("e.exr", "grey.exr"):
+        fr = F.read_plain(tmp_path / "color.exr", emissive=tmp_path / name)
+        assert fr.emissive.shape == (5, 6, 1)
+        np.testing.assert_array_equal(fr.emissive[..., 0], e)
+    W.write_rgb(tmp_path / "bright.exr", np.repeat(2 * e[..., None], 3, axis=-1))
+    with pytest.raises(F.FrameError, match=r"emissive image holds the fraction .* in \[0, 1\]; found \d+ pixel"):
+        F.read_plain(tmp_path / "color.exr", emissive=tmp_path / "bright.exr")
+
+
 def test_plain_depth_image(tmp_path):
     """A depth image for a plain input: an EXR Z channel, a greyscale PFM or a grey RGB EXR
     give the same (H, W, 1) plane; a colour PFM or different R, G, B are refused by name."""

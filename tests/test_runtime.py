@@ -21,8 +21,9 @@ from mcdenoise.training.harness import synthetic_frame
 
 SPEC = "wskpn-3"
 #: The driver's two kinds of temporal state: wskpn-3's colour is accumulated by the driver
-#: ([[accumulate]]), nbg-2l-1g carries a model state (prev_accum / next_accum / history).
-TEMPORAL_SPECS = [SPEC, "nbg-2l-1g"]
+#: ([[accumulate]]), nbg-2l-1g carries a model state (prev_accum / next_accum / history);
+#: wskpn-6e-aa accumulates two layers (colour and albedo), the second at a fixed weight.
+TEMPORAL_SPECS = [SPEC, "nbg-2l-1g", "wskpn-6e-aa"]
 
 
 @pytest.fixture(scope="module", params=TEMPORAL_SPECS)
@@ -276,18 +277,19 @@ def test_denoise_command_on_plain_images(model_file, tmp_path, capsys):
     from mcdenoise.runtime.cli import main
     from mcdenoise.runtime.writers import write_rgb
 
-    path, _, _ = model_file
+    path, spec, _ = model_file
     f = _frame(0)
-    write_rgb(tmp_path / "color.exr", f.color)
-    write_rgb(tmp_path / "albedo.exr", f.albedo)
-    write_rgb(tmp_path / "normal.exr", f.normal)
-    write_rgb(tmp_path / "depth.exr", np.repeat(f.depth, 3, axis=-1))
+    others = [n for n in spec.inputs.layers if n not in ("color", "albedo")]
+    for n in ["color", "albedo"] + others:
+        v = getattr(f, n)
+        write_rgb(tmp_path / f"{n}.exr", v if v.shape[-1] == 3 else np.repeat(v, 3, axis=-1))
     args = ["denoise", "--model", str(path), "--input", str(tmp_path / "color.exr"), "--output", str(tmp_path / "o")]
     assert main(args + ["--albedo", str(tmp_path / "albedo.exr")]) == 2
-    assert "needs normal, depth beside the colour: give --normal FILE --depth FILE" in capsys.readouterr().err
-    assert main(args + ["--albedo", str(tmp_path / "albedo.exr"), "--normal", str(tmp_path / "normal.exr"),
-                        "--depth", str(tmp_path / "depth.exr")]) == 0
-    want = Denoiser.load(path, log=lambda m: None)(Frame(color=f.color, albedo=f.albedo, normal=f.normal, depth=f.depth))
+    flags = " ".join(f"--{n} FILE" for n in others)
+    assert f"needs {', '.join(others)} beside the colour: give {flags}" in capsys.readouterr().err
+    assert main(args + ["--albedo", str(tmp_path / "albedo.exr")]
+                + [a for n in others for a in (f"--{n}", str(tmp_path / f"{n}.exr"))]) == 0
+    want = Denoiser.load(path, log=lambda m: None)(Frame(color=f.color, **{n: getattr(f, n) for n in ["albedo"] + others}))
     np.testing.assert_array_equal(read_rgb(tmp_path / "o" / "color.exr"), want)
 
 

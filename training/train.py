@@ -30,6 +30,7 @@ diverging loss stop every process at the same step.
 from __future__ import annotations
 
 import copy
+import gc
 import json
 import math
 import os
@@ -734,8 +735,13 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     if world > 1:
         # Every process leaves the group together: a process that exits with gloo's threads
         # still running aborts ("terminate called without an active exception", exit -6).
+        # DDP's reducer holds the group too, in reference cycles that only the interpreter's
+        # teardown would free (the abort seen in CI once): it goes first, while the group lives.
+        forward = batches = None
+        gc.collect()
         dist.barrier()
         dist.destroy_process_group()
+        gc.collect()
     return row
 
 
