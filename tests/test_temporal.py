@@ -324,3 +324,58 @@ def test_a_batch_blends_each_item_with_its_own_spp():
         proto.follow(alone, {proto.accum_key("color"): state[i:i + 1].numpy()}, motion, cur, prev, spp=n)
         np.testing.assert_allclose(feeds["color"][i:i + 1].numpy(), alone["color"], rtol=1e-6, atol=1e-6)
     assert not np.allclose(feeds["color"][0].numpy(), feeds["color"][1].numpy())
+
+
+def test_a_method_fed_the_albedo_history_sees_the_drivers_accumulation():
+    """training.methods.AlbedoHistory (oidn-high-aa): a static camera, an albedo that changes
+    each frame; the wrapped method sees the frame's albedo first, then the driver's blend
+    alpha * new + (1 - alpha) * kept; a camera cut, a frame without motion, a new size and
+    reset() restart it; a NaN never enters the history."""
+    from mcdenoise.runtime.frames import Frame
+    from mcdenoise.training.harness import synthetic_frame
+    from mcdenoise.training.methods import AlbedoHistory
+
+    class Spy:
+        name = "spy"
+
+        def __init__(self):
+            self.seen, self.resets = [], 0
+
+        def __call__(self, fr):
+            self.seen.append(fr.albedo.copy())
+            return fr.color
+
+        def reset(self):
+            self.resets += 1
+
+    def frame(scale, **kw):
+        f = synthetic_frame(16, 12, 0)
+        f["motion"][:] = 0       # a static camera: every pixel keeps its history
+        f["albedo"] = f["albedo"] * scale
+        f.update(kw)
+        return Frame(**f)
+
+    spy = Spy()
+    m = AlbedoHistory(spy, alpha=0.25)
+    assert m.name == "spy-aa"
+    a0 = frame(1.0).albedo
+    m(frame(1.0))
+    m(frame(0.5))
+    np.testing.assert_array_equal(spy.seen[0], a0)
+    np.testing.assert_allclose(spy.seen[1], a0 * (0.25 * 0.5 + 0.75), rtol=1e-6)
+    bad = frame(0.5)
+    bad.albedo[3, 4] = np.nan
+    m(bad)
+    assert np.isfinite(spy.seen[2]).all() and np.isfinite(m._albedo).all()
+    for restart in (dict(meta={"cut": True}), dict(motion=None)):
+        m(frame(0.5, **restart))
+        np.testing.assert_array_equal(spy.seen[-1], a0 * 0.5)
+    small = synthetic_frame(8, 6, 0)
+    m(Frame(**small))
+    np.testing.assert_array_equal(spy.seen[-1], small["albedo"])
+    m.reset()
+    m(frame(0.5))
+    np.testing.assert_array_equal(spy.seen[-1], a0 * 0.5)
+    assert spy.resets == 2       # at construction and at reset()
+    with pytest.raises(ValueError, match="alpha"):
+        AlbedoHistory(spy, alpha=0)

@@ -82,7 +82,7 @@ def format_results(results: dict) -> str:
 
 def add_arguments(p):
     p.add_argument("models", nargs="+",
-                   help="ONNX model files and/or method names (noisy, oidn-high, oidn-fast, svgf)")
+                   help="ONNX model files and/or method names (noisy, oidn-high, oidn-fast, oidn-high-aa, oidn-fast-aa, svgf)")
     add_data(p)
     p.add_argument("--spp", type=int, default=1, help="samples per pixel fed to the denoisers")
     p.add_argument("--stills", action="store_true",

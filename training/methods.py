@@ -13,7 +13,9 @@ A *method* is an object with
 :func:`load_method` builds one from a name: a path to an mcdenoise ``.onnx`` file (the
 runtime driver, :class:`runtime.denoiser.Denoiser`), ``noisy`` (the input itself),
 ``oidn-high`` / ``oidn-fast`` (Intel Open Image Denoise via ``pyoidn`` with albedo and normal,
-HDR), or ``svgf`` (the classical non-neural temporal filter, :mod:`training.svgf`).
+HDR), ``oidn-high-aa`` / ``oidn-fast-aa`` (the same fed the albedo accumulated over frames, as
+the driver accumulates it for a model whose spec asks: :class:`AlbedoHistory`), or ``svgf``
+(the classical non-neural temporal filter, :mod:`training.svgf`).
 ``evaluate``, ``bench`` and ``stress`` all go through here, so a method is run the same way
 everywhere.  Only the runtime stack is needed (no torch); ``pyoidn`` only for OIDN.
 """
@@ -26,7 +28,7 @@ import numpy as np
 from mcdenoise.runtime.frames import Frame, FrameError
 
 #: Built-in method names (besides ONNX file paths).
-BUILTIN = ("noisy", "oidn-high", "oidn-fast", "svgf")
+BUILTIN = ("noisy", "oidn-high", "oidn-fast", "oidn-high-aa", "oidn-fast-aa", "svgf")
 
 
 def _frame(frame) -> Frame:
@@ -90,6 +92,54 @@ class OIDN:
         pass
 
 
+class AlbedoHistory:
+    """``method`` fed each frame's albedo accumulated over the sequence, as the driver
+    accumulates an ``[[accumulate]]`` layer (wskpn-6e-aa's albedo): the kept albedo reprojected
+    along the motion vectors with the driver's consistency test
+    (:func:`runtime.temporal.reproject` on depth, position and normal), blended with the
+    frame's at ``alpha`` (:func:`runtime.temporal.accumulate`), restarted where the test keeps
+    no history, on a camera cut, a resolution change, a frame without motion, and at
+    :meth:`reset`. A comparison with such a model then gives the other method the same cleaner
+    albedo. The albedo is (H, W, 3) in [0, 1]-ish units; a non-finite value is kept out of the
+    history (0 there), the frame's own value is what the method sees where it has no history."""
+
+    SUFFIX = "-aa"
+
+    def __init__(self, method, alpha: float = 0.2):
+        if not 0 < alpha <= 1:
+            raise ValueError(f"alpha must be in (0, 1], got {alpha}")
+        self.method, self.alpha = method, float(alpha)
+        self.name = method.name + self.SUFFIX
+        self.reset()
+
+    def reset(self) -> None:
+        self.method.reset()
+        self._albedo = self._guides = None
+
+    def __call__(self, frame) -> np.ndarray:
+        from dataclasses import replace
+
+        from mcdenoise.runtime.temporal import accumulate, reproject
+
+        fr = _frame(frame)
+        if fr.albedo is None:
+            return self.method(fr)
+
+        def planes(a):      # (H, W, C) -> (1, C, H, W), finite
+            a = np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 0, 1)[None])
+            return np.where(np.isfinite(a), a, np.float32(0))
+
+        albedo = planes(fr.albedo)
+        guides = {n: planes(getattr(fr, n)) for n in ("depth", "position", "normal") if getattr(fr, n) is not None}
+        fresh = (self._albedo is None or self._albedo.shape != albedo.shape or fr.motion is None
+                 or "depth" not in guides or fr.meta.get("cut"))
+        if not fresh:
+            (warped,), history = reproject([self._albedo], planes(fr.motion), guides, self._guides)
+            albedo = accumulate(albedo, warped, history, self.alpha).astype(np.float32, copy=False)
+        self._albedo, self._guides = albedo, guides
+        return self.method(replace(fr, albedo=albedo[0].transpose(1, 2, 0).copy()))
+
+
 class ONNXModel:
     """An mcdenoise ONNX file run by the runtime driver (temporal state included)."""
 
@@ -149,6 +199,8 @@ def load_method(name: str, threads: int = 0, providers=None, profile: bool = Fal
                          accumulate_alpha=accumulate_alpha, history_spp=history_spp)
     if name == "noisy":
         return Noisy()
+    if name.startswith("oidn-") and name.endswith(AlbedoHistory.SUFFIX):
+        return AlbedoHistory(OIDN(name[len("oidn-"):-len(AlbedoHistory.SUFFIX)]))
     if name.startswith("oidn-"):
         return OIDN(name[len("oidn-"):])
     if name == "svgf":
