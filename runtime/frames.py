@@ -375,11 +375,9 @@ def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None
                normal: str | os.PathLike | None = None, depth: str | os.PathLike | None = None,
                emissive: str | os.PathLike | None = None) -> Frame:
     """The Open Image Denoise input convention: a colour image plus optional albedo/normal
-    images of the same size (EXR or PFM), and optionally one-channel images (:func:`read_gray`)
-    of depth (distance from the camera in any unit, since the models see depth / its
-    per-image maximum; 0 on a miss) and of the emissive layer (the fraction of each pixel's
-    samples whose first hit is a light, in [0, 1]; FrameError outside it).  Returns a
-    pixel-only :class:`Frame` (no motion: no temporal history)."""
+    images of the same size (EXR or PFM), and one-channel images (:func:`read_gray`) of depth
+    (any unit: models see depth / its maximum; 0 on a miss) and emissive (the fraction of
+    samples that hit a light, in [0, 1]).  A pixel-only :class:`Frame` (no motion, no history)."""
     c = read_rgb(color)
     fr = Frame(color=c, path=os.fspath(color), meta={"source": "plain"})
     for name, p in (("albedo", albedo), ("normal", normal), ("depth", depth), ("emissive", emissive)):
@@ -389,8 +387,7 @@ def read_plain(color: str | os.PathLike, albedo: str | os.PathLike | None = None
         if arr.shape[:2] != c.shape[:2]:
             raise FrameError(f"{p}: {name} image is {arr.shape[1]}x{arr.shape[0]}, colour "
                              f"{color} is {c.shape[1]}x{c.shape[0]}")
-        if name == "emissive" and not ((arr >= 0) & (arr <= 1)).all():
-            bad = arr[~((arr >= 0) & (arr <= 1))]
+        if (bad := arr[~((arr >= 0) & (arr <= 1))] if name == "emissive" else arr[:0]).size:
             raise FrameError(f"{p}: the emissive image holds the fraction of each pixel's samples that hit "
                              f"a light, in [0, 1]; found {bad.size} pixel(s) outside it (e.g. {float(bad[0]):g})")
         setattr(fr, name, arr)
