@@ -14,7 +14,7 @@
 # no longer has), data/curves-test for the validation curve; rendered here if missing (about 12
 # minutes with --workers 2 on a 2-core VM). The decoded frames are shared in one --cache-dir.
 # Writes docs/results/albedo-history/<run> (small: commit them) and <run>.log; score with
-# MODELS="/tmp/albedo-history/wskpn-6e-ft.onnx /tmp/albedo-history/wskpn-6e-aa.onnx" eval.sh
+# ZERO=0 BASE=0 TAG=runs MODELS="/tmp/albedo-history/wskpn-6e-ft.onnx /tmp/albedo-history/wskpn-6e-aa.onnx" eval.sh
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 minutes=$1
@@ -33,4 +33,4 @@ for pair in "wskpn-6e-aa wskpn-6e-aa" "wskpn-6e wskpn-6e-ft"; do
       --threads "$(nproc)" --seed 31 --cache-dir /tmp/albedo-history/cache --quiet > "$out/$run.log" 2>&1
   mcdenoise export "$out/$run" --out "/tmp/albedo-history/$run.onnx"
 done
-echo "trained: $out/wskpn-6e-aa $out/wskpn-6e-ft; next: ZERO=0 MODELS=\"/tmp/albedo-history/wskpn-6e-ft.onnx /tmp/albedo-history/wskpn-6e-aa.onnx\" bash $out/eval.sh"
+echo "trained: $out/wskpn-6e-aa $out/wskpn-6e-ft; next: ZERO=0 BASE=0 TAG=runs MODELS=\"/tmp/albedo-history/wskpn-6e-ft.onnx /tmp/albedo-history/wskpn-6e-aa.onnx\" bash $out/eval.sh"

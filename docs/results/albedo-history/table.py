@@ -1,0 +1,65 @@
+"""The albedo history (issue 15) as markdown:
+
+    python docs/results/albedo-history/table.py > docs/results/albedo-history/table.md
+
+Reads only this folder's committed evaluations (``mcdenoise evaluate --json``):
+<set>/<spp>spp.json (eval.sh: wskpn-6e as shipped, its weights under wskpn-6e-aa's rules,
+Open Image Denoise high), <set>/a02-<spp>spp.json (the same when the spec's albedo weight was a
+fixed 0.2, commit 04d8be4), <set>/peer-<spp>spp.json (peer.sh: Open Image Denoise high fed the
+accumulated albedo), <set>/sweep-<spp>spp.json (sweep.sh: other albedo weights),
+<set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs).
+PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history, after 8 warm-up frames."""
+import json
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout-lamp_occluder")
+SPP = (1, 4, 8)
+#: column -> the (file prefix, method key) that hold it, the first found wins
+COLUMNS = {"wskpn-6e (shipped)": (("", "wskpn-6e"), ("a02-", "wskpn-6e")),
+           "aa, alpha 0.2": (("a02-", "wskpn-6e-aa"), ("sweep-", "wskpn-6e-aa-a02")),
+           "aa, K 4 (the spec)": (("", "wskpn-6e-aa"), ("sweep-", "wskpn-6e-aa-k4")),
+           "aa, K 8": (("sweep-", "wskpn-6e-aa-k8"),),
+           "A/B control wskpn-6e-ft": (("runs-", "wskpn-6e"),),
+           "A/B wskpn-6e-aa trained": (("runs-", "wskpn-6e-aa"),),
+           "oidn-high": (("", "oidn-high"), ("a02-", "oidn-high")),
+           "oidn-high-aa": (("peer-", "oidn-high-aa"),)}
+
+
+def load(path: Path) -> dict:
+    """{method: result after warm-up} of one evaluation file, {} if missing."""
+    if not path.exists():
+        return {}
+    d = json.loads(path.read_text())
+    d.pop("_setup", None)
+    return {m: r.get("after_warmup") or r for m, r in d.items() if "(no history)" not in m}
+
+
+def cell(r) -> str:
+    return "-" if r is None else f"{r['psnr']:.2f} / {r['trmae']:.3f}"
+
+
+def main() -> None:
+    files = {(s, p, spp): load(HERE / s / f"{p}{spp}spp.json")
+             for s in SETS for p in {p for c in COLUMNS.values() for p, _ in c} for spp in SPP}
+
+    def result(s, col, spp):
+        return next((files[(s, p, spp)][k] for p, k in COLUMNS[col] if k in files[(s, p, spp)]), None)
+
+    cols = [c for c in COLUMNS if any(result(s, c, spp) for s in SETS for spp in SPP)]
+    print("# The albedo history (issue 15)\n")
+    print("Made by `python docs/results/albedo-history/table.py` from the evaluations of eval.sh, peer.sh,")
+    print("sweep.sh (and train.sh's runs, scored by eval.sh). PSNR dB / TRMAE, with history, after 8 warm-up")
+    print("frames. \"aa\": the shipped wskpn-6e weights, the driver also accumulating the albedo (spec")
+    print("wskpn-6e-aa) at a fixed alpha 0.2, or at spp / (spp + K).\n")
+    print("| set | spp | " + " | ".join(cols) + " |")
+    print("|---|---:|" + "---:|" * len(cols))
+    for s in SETS:
+        for spp in SPP:
+            row = [cell(result(s, c, spp)) for c in cols]
+            if any(x != "-" for x in row):
+                print(f"| {s} | {spp} | " + " | ".join(row) + " |")
+
+
+if __name__ == "__main__":
+    main()
