@@ -329,11 +329,13 @@ def test_a_batch_blends_each_item_with_its_own_spp():
 def test_a_method_fed_the_albedo_history_sees_the_drivers_accumulation():
     """training.methods.AlbedoHistory (oidn-high-aa): a static camera, an albedo that changes
     each frame; the wrapped method sees the frame's albedo first, then the driver's blend
-    alpha * new + (1 - alpha) * kept; a camera cut, a frame without motion, a new size and
-    reset() restart it; a NaN never enters the history."""
+    alpha * new + (1 - alpha) * kept, alpha by wskpn-6e-aa's rule for the frame's spp by default;
+    a camera cut, a frame without motion, a new size and reset() restart it; a NaN never enters
+    the history."""
     from mcdenoise.runtime.frames import Frame
     from mcdenoise.training.harness import synthetic_frame
     from mcdenoise.training.methods import AlbedoHistory
+    from mcdenoise.training.specs import load_spec
 
     class Spy:
         name = "spy"
@@ -356,7 +358,7 @@ def test_a_method_fed_the_albedo_history_sees_the_drivers_accumulation():
         return Frame(**f)
 
     spy = Spy()
-    m = AlbedoHistory(spy, alpha=0.25)
+    m = AlbedoHistory(spy, alpha=0.25, history_spp=0)
     assert m.name == "spy-aa"
     a0 = frame(1.0).albedo
     m(frame(1.0))
@@ -379,3 +381,12 @@ def test_a_method_fed_the_albedo_history_sees_the_drivers_accumulation():
     assert spy.resets == 2       # at construction and at reset()
     with pytest.raises(ValueError, match="alpha"):
         AlbedoHistory(spy, alpha=0)
+    entry = next(a for a in load_spec("wskpn-6e-aa").accumulate if a.layer == "albedo")
+    spec_rule = AlbedoHistory(spy)
+    assert (spec_rule.alpha, spec_rule.history_spp) == (entry.alpha, entry.history_spp) and entry.history_spp > 0
+    for spp, weight in ((None, entry.alpha), (8, 8 / (8 + entry.history_spp))):
+        spec_rule.reset()
+        meta = {} if spp is None else {"spp": spp}
+        spec_rule(frame(1.0, meta=meta))
+        spec_rule(frame(0.5, meta=meta))
+        np.testing.assert_allclose(spy.seen[-1], a0 * (weight * 0.5 + 1 - weight), rtol=1e-6)

@@ -97,7 +97,9 @@ class AlbedoHistory:
     accumulates an ``[[accumulate]]`` layer (wskpn-6e-aa's albedo): the kept albedo reprojected
     along the motion vectors with the driver's consistency test
     (:func:`runtime.temporal.reproject` on depth, position and normal), blended with the
-    frame's at ``alpha`` (:func:`runtime.temporal.accumulate`), restarted where the test keeps
+    frame's at the weight of :meth:`runtime.temporal.Protocol.alpha` (spp / (spp + history_spp)
+    for a frame of known spp when history_spp > 0, else ``alpha``; by default wskpn-6e-aa's
+    albedo entry), restarted where the test keeps
     no history, on a camera cut, a resolution change, a frame without motion, and at
     :meth:`reset`. A comparison with such a model then gives the other method the same cleaner
     albedo. The albedo is (H, W, 3) in [0, 1]-ish units; a non-finite value is kept out of the
@@ -105,10 +107,16 @@ class AlbedoHistory:
 
     SUFFIX = "-aa"
 
-    def __init__(self, method, alpha: float = 0.2):
-        if not 0 < alpha <= 1:
-            raise ValueError(f"alpha must be in (0, 1], got {alpha}")
-        self.method, self.alpha = method, float(alpha)
+    def __init__(self, method, alpha: float | None = None, history_spp: float | None = None):
+        if alpha is None or history_spp is None:
+            from mcdenoise.training.specs import load_spec
+
+            entry = next(a for a in load_spec("wskpn-6e-aa").accumulate if a.layer == "albedo")
+            alpha = entry.alpha if alpha is None else alpha
+            history_spp = entry.history_spp if history_spp is None else history_spp
+        if not 0 < alpha <= 1 or not history_spp >= 0:
+            raise ValueError(f"alpha must be in (0, 1] and history_spp >= 0, got {alpha}, {history_spp}")
+        self.method, self.alpha, self.history_spp = method, float(alpha), float(history_spp)
         self.name = method.name + self.SUFFIX
         self.reset()
 
@@ -119,7 +127,7 @@ class AlbedoHistory:
     def __call__(self, frame) -> np.ndarray:
         from dataclasses import replace
 
-        from mcdenoise.runtime.temporal import accumulate, reproject
+        from mcdenoise.runtime.temporal import Protocol, accumulate, reproject
 
         fr = _frame(frame)
         if fr.albedo is None:
@@ -135,7 +143,8 @@ class AlbedoHistory:
                  or "depth" not in guides or fr.meta.get("cut"))
         if not fresh:
             (warped,), history = reproject([self._albedo], planes(fr.motion), guides, self._guides)
-            albedo = accumulate(albedo, warped, history, self.alpha).astype(np.float32, copy=False)
+            alpha = Protocol.alpha(("albedo", "albedo", self.alpha, self.history_spp), fr.color_spp)
+            albedo = accumulate(albedo, warped, history, alpha).astype(np.float32, copy=False)
         self._albedo, self._guides = albedo, guides
         return self.method(replace(fr, albedo=albedo[0].transpose(1, 2, 0).copy()))
 

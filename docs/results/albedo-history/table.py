@@ -6,7 +6,7 @@ Reads only this folder's committed evaluations (``mcdenoise evaluate --json``):
 <set>/<spp>spp.json (eval.sh: wskpn-6e as shipped, its weights under wskpn-6e-aa's rules,
 Open Image Denoise high), <set>/a02-<spp>spp.json (the same when the spec's albedo weight was a
 fixed 0.2, commit 04d8be4), <set>/peer-<spp>spp.json (peer.sh: Open Image Denoise high fed the
-accumulated albedo), <set>/sweep-<spp>spp.json (sweep.sh: other albedo weights),
+accumulated albedo; peer-a02-<spp>spp.json when that was at a fixed 0.2, commit 3eef59f), <set>/sweep-<spp>spp.json (sweep.sh: other albedo weights),
 <set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history, after 8 warm-up frames."""
 import json
@@ -23,7 +23,8 @@ COLUMNS = {"wskpn-6e (shipped)": (("", "wskpn-6e"), ("a02-", "wskpn-6e")),
            "A/B control wskpn-6e-ft": (("runs-", "wskpn-6e"),),
            "A/B wskpn-6e-aa trained": (("runs-", "wskpn-6e-aa"),),
            "oidn-high": (("", "oidn-high"), ("a02-", "oidn-high")),
-           "oidn-high-aa": (("peer-", "oidn-high-aa"),)}
+           "oidn-high-aa, alpha 0.2": (("peer-a02-", "oidn-high-aa"),),
+           "oidn-high-aa, K 4": (("peer-", "oidn-high-aa"),)}
 
 
 def load(path: Path) -> dict:
