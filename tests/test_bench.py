@@ -438,3 +438,12 @@ def test_evaluate_scores_each_model_without_its_history_beside_it(tiny_dataset, 
     # ...and the history changed what the frames after the first look like.
     assert res["wskpn-3 (no history)"]["frames"] == res["wskpn-3"]["frames"]
     assert res["wskpn-3 (no history)"]["psnr"] != res["wskpn-3"]["psnr"]
+    # What reports read back: the rows with history, after warm-up where a file has it.
+    from mcdenoise.training.evaluate import load_results
+
+    assert load_results(out) == {k: res[k] for k in ("ndle-s", "noisy", "wskpn-3")}
+    assert load_results(tmp_path / "not-made-yet.json") == {}
+    later = dict(res["wskpn-3"], psnr=99.0)
+    out.write_text(json.dumps({"_setup": {}, "wskpn-3": dict(res["wskpn-3"], after_warmup=later)}))
+    assert load_results(out) == {"wskpn-3": later}
+    assert load_results(out, after_warmup=False)["wskpn-3"]["psnr"] == res["wskpn-3"]["psnr"]

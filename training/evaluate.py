@@ -59,6 +59,18 @@ def evaluate(models: list[str], data: str, spp: int = 1, oidn: bool = True, thre
     return results
 
 
+def load_results(path, after_warmup: bool = True) -> dict:
+    """{method: scores} of an ``evaluate --json`` file without its ``"_setup"`` and its
+    "(no history)" rows; with ``after_warmup`` the scores after warm-up where the file has them.
+    {} for a missing file (a result not made yet)."""
+    path = Path(path)
+    if not path.exists():
+        return {}
+    d = json.loads(path.read_text())
+    d.pop("_setup", None)
+    return {m: (r.get("after_warmup") if after_warmup else None) or r for m, r in d.items() if "(no history)" not in m}
+
+
 def _f(v, fmt):
     return "-" if v is None else format(v, fmt)
 

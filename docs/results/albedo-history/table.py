@@ -9,8 +9,9 @@ fixed 0.2, commit 04d8be4), <set>/peer-<spp>spp.json (peer.sh: Open Image Denois
 accumulated albedo; peer-a02-<spp>spp.json when that was at a fixed 0.2, commit 3eef59f), <set>/sweep-<spp>spp.json (sweep.sh: other albedo weights),
 <set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history, after 8 warm-up frames."""
-import json
 from pathlib import Path
+
+from mcdenoise.training.evaluate import load_results as load   # {method: after warm-up}, {} if missing
 
 HERE = Path(__file__).resolve().parent
 SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout-lamp_occluder")
@@ -25,15 +26,6 @@ COLUMNS = {"wskpn-6e (shipped)": (("", "wskpn-6e"), ("a02-", "wskpn-6e")),
            "oidn-high": (("", "oidn-high"), ("a02-", "oidn-high")),
            "oidn-high-aa, alpha 0.2": (("peer-a02-", "oidn-high-aa"),),
            "oidn-high-aa, K 4": (("peer-", "oidn-high-aa"),)}
-
-
-def load(path: Path) -> dict:
-    """{method: result after warm-up} of one evaluation file, {} if missing."""
-    if not path.exists():
-        return {}
-    d = json.loads(path.read_text())
-    d.pop("_setup", None)
-    return {m: r.get("after_warmup") or r for m, r in d.items() if "(no history)" not in m}
 
 
 def cell(r) -> str:

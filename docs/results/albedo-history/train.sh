@@ -19,10 +19,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../../.."
 minutes=$1
 out=docs/results/albedo-history
-[ -f data/curves-test/manifest.json ] || mcdenoise render --out data/curves-test --scenes 4 --frames 8 --spp 8 \
-  --ref-spp 512 --size 128x128 --seed 11 --enclosed 0.5 < /dev/null
-[ -f data/curves-train/manifest.json ] || mcdenoise render --out data/curves-train --scenes 24 --frames 8 --spp 8 \
-  --ref-spp 256 --size 128x128 --seed 10 --enclosed 0.5 --workers 2 < /dev/null
+bash docs/results/curves/data.sh
 mkdir -p /tmp/albedo-history
 for pair in "wskpn-6e-aa wskpn-6e-aa" "wskpn-6e wskpn-6e-ft"; do
   read -r spec run <<< "$pair"

@@ -12,8 +12,9 @@ Reads only committed evaluations (``mcdenoise evaluate --json``):
     run wskpn-6e was exported from) and docs/results/highspp/<set>-8spp.json (8 spp).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history; sequences after
 their warm-up (2 frames on curves-test, 8 on the held-out sets)."""
-import json
 from pathlib import Path
+
+from mcdenoise.training.evaluate import load_results as load   # {method: after warm-up}, {} if missing
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE.parent
@@ -21,15 +22,6 @@ RUNS = ("anf-s-ft", "anf-sd")
 SETS = ("long-slow", "heldout-room_window", "heldout-lamp_occluder")
 #: (column, method key in the shipped files)
 SHIPPED = (("anf-s (shipped)", "anf-s"), ("wskpn-6e", "wskpn-6e"), ("oidn-high", "oidn-high"))
-
-
-def load(path: Path) -> dict:
-    """{method: result} of one evaluation file (after warm-up where it has it), {} if missing."""
-    if not path.exists():
-        return {}
-    d = json.loads(path.read_text())
-    d.pop("_setup", None)
-    return {m: r.get("after_warmup") or r for m, r in d.items() if "(no history)" not in m}
 
 
 def run_result(path: Path):
