@@ -7,7 +7,8 @@ Reads only this folder's committed evaluations (``mcdenoise evaluate --json``):
 Open Image Denoise high), <set>/a02-<spp>spp.json (the same when the spec's albedo weight was a
 fixed 0.2, commit 04d8be4), <set>/peer-<spp>spp.json (peer.sh: Open Image Denoise high fed the
 accumulated albedo; peer-a02-<spp>spp.json when that was at a fixed 0.2, commit 3eef59f), <set>/sweep-<spp>spp.json (sweep.sh: other albedo weights),
-<set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs).
+<set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs), <set>/s7-<spp>spp.json
+(scale sitting 7, wskpn-6e-aa trained on the chain's shards: docs/results/scale/README.md, TAG=s7).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history, after 8 warm-up frames."""
 from pathlib import Path
 
@@ -23,6 +24,7 @@ COLUMNS = {"wskpn-6e (shipped)": (("", "wskpn-6e"), ("a02-", "wskpn-6e")),
            "aa, K 8": (("sweep-", "wskpn-6e-aa-k8"),),
            "A/B control wskpn-6e-ft": (("runs-", "wskpn-6e"),),
            "A/B wskpn-6e-aa trained": (("runs-", "wskpn-6e-aa"),),
+           "wskpn-6e-aa, scale sitting 7": (("s7-", "wskpn-6e-aa"),),
            "oidn-high": (("", "oidn-high"), ("a02-", "oidn-high")),
            "oidn-high-aa, alpha 0.2": (("peer-a02-", "oidn-high-aa"),),
            "oidn-high-aa, K 4": (("peer-", "oidn-high-aa"),)}
