@@ -11,11 +11,10 @@
 # wskpn-6-aa, oidn-fast, oidn-fast-aa); table.py reads them.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
-out=docs/results/albedo-history
-tmp=/tmp/albedo-history
+sets=("${@:-long-slow}")
+[ $# -gt 0 ] || sets+=(heldout-lamp_occluder)
+out=docs/results/albedo-history tmp=/tmp/albedo-history
 mkdir -p "$tmp"
-sets=("$@")
-[ ${#sets[@]} -gt 0 ] || sets=(long-slow heldout-lamp_occluder)
 files=()
 for m in wskpn-3 wskpn-6; do
   # The model's own spec, renamed, plus wskpn-6e-aa's albedo entry (its last [[accumulate]]).
