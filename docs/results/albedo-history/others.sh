@@ -17,6 +17,11 @@ out=docs/results/albedo-history tmp=/tmp/albedo-history
 mkdir -p "$tmp"
 files=()
 for m in wskpn-3 wskpn-6; do
+  if [ -f "models_spec/$m-aa.toml" ]; then   # shipped since (wskpn-3-aa): its own spec file
+    mcdenoise export "models/$m.onnx" --protocol-from "models_spec/$m-aa.toml" --out "$tmp/$m-aa.onnx"
+    files+=("models/$m.onnx" "$tmp/$m-aa.onnx")
+    continue
+  fi
   # The model's own spec, renamed, plus wskpn-6e-aa's albedo entry (its last [[accumulate]]).
   { sed -e "s/^name = \"$m\"/name = \"$m-aa\"/" "models_spec/$m.toml"
     awk '/^\[\[accumulate\]\]/ {n++} n == 2 && /^\[params\]/ {exit} n == 2 {print}' models_spec/wskpn-6e-aa.toml
