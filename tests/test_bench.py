@@ -268,7 +268,7 @@ def test_flops_of_anf_count_its_taps_at_the_kernel_size_setting():
 
 
 def test_flops_of_a_model_conv_layers():
-    path = next(p for p in shipped_models() if "wskpn-3" in p)
+    path = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
     model = onnx.load(path)
     w, h = 96, 64
     c = count_flops(model, w, h)
@@ -404,7 +404,7 @@ def test_score_pools_frames_of_several_sizes():
 def test_evaluate_scores_after_a_warmup_and_with_another_alpha(tiny_dataset, tmp_path, capsys):
     import json
 
-    wskpn = next(p for p in shipped_models() if "wskpn-3" in p)
+    wskpn = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
     out = tmp_path / "e.json"
     for alpha in ("0.2", "1"):
         assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--spp", "1", "--warmup", "1", "--alpha", alpha,
@@ -423,7 +423,7 @@ def test_evaluate_scores_after_a_warmup_and_with_another_alpha(tiny_dataset, tmp
 def test_evaluate_scores_each_model_without_its_history_beside_it(tiny_dataset, tmp_path):
     import json
 
-    wskpn = next(p for p in shipped_models() if "wskpn-3" in p)
+    wskpn = next(p for p in shipped_models() if p.endswith("wskpn-3.onnx"))
     ndle = next(p for p in shipped_models() if "ndle-s" in p)
     out = tmp_path / "e.json"
     assert cli_main(["evaluate", wskpn, "--data", tiny_dataset, "--no-oidn", "--json", str(out)]) == 0

@@ -379,6 +379,28 @@ def test_adopt_protocol_accumulates_one_more_layer(exported, tmp_path):
         assert (np.abs(adopted - shipped).max() > 1e-4) == (t > 0)
 
 
+def test_shipped_protocol_files_are_their_base_under_the_committed_spec():
+    """A shipped file made by ``export --protocol-from`` (wskpn-6e-aa, wskpn-3-aa: a base model's
+    weights under a spec that also accumulates the albedo) holds the shipped base's graph byte
+    for byte and exactly its committed spec file, so its card's scores stay those of what ships."""
+    from mcdenoise.training.methods import shipped_models
+
+    def contract(path):
+        return C.parse_contract({p.key: p.value for p in onnx.load(path).metadata_props})
+
+    adopted = {}
+    for path in shipped_models():
+        con = contract(path)
+        base = (con.export.get("protocol_from") or {}).get("trained_as")
+        if base:
+            adopted[con.spec_name] = base
+            base_path = path.rsplit("/", 1)[0] + f"/{base}.onnx"
+            assert onnx.load(path).graph.SerializeToString() == onnx.load(base_path).graph.SerializeToString()
+            assert con.spec_toml == load_spec(con.spec_name).raw
+            assert [a["layer"] for a in con.accumulate] == ["color", "albedo"]
+    assert adopted == {"wskpn-3-aa": "wskpn-3", "wskpn-6e-aa": "wskpn-6e"}
+
+
 def test_a_fed_state_weight_is_declared_and_checked(exported):
     """nbg-2l-1g's [[state]] accum has an alpha: the contract's state entry names its weight
     input (N, 1, 1, 1 in the graph, only N dynamic), format 4; malformed entries are refused."""
