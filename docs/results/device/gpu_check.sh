@@ -8,6 +8,8 @@
 # the driver at 1280x720: numpy prelude with the state on the host, the prelude graphs with the
 # state on the host, and the default on a device, the prelude graphs with the state kept on the
 # device with IO binding; each row's graph time beside its whole frame).
+# MODELS="models/wskpn-3.onnx models/wskpn-6e-aa.onnx" limits both to those files (default: every
+# shipped model, 12 since 2026-12-06; anf-s and ndle-s are the slow ones when device time is short).
 set -euo pipefail
 site="$PWD/.gpu/site"
 mkdir -p "$site" "$OUT"
@@ -18,15 +20,17 @@ cp mcdenoise/__init__.py "$site/mcdenoise/"
 for d in runtime training export; do ln -sfn "$PWD/$d" "$site/mcdenoise/$d"; done
 export PYTHONPATH="$site"
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader > "$OUT/gpu.txt" || true
-python -m mcdenoise.runtime.cli bench --device cuda --no-quality --frames 20 --warmup 5 --out "$OUT/bench" \
+read -r -a models <<< "${MODELS-}"
+python -m mcdenoise.runtime.cli bench ${models[@]+"${models[@]}"} --device cuda --no-quality --frames 20 --warmup 5 --out "$OUT/bench" \
   > "$OUT/bench.log" 2>&1 || echo "bench failed (see bench.log)"
-python - > "$OUT/driver.txt" 2>&1 <<'PY'
+MODELS="${MODELS-}" python - > "$OUT/driver.txt" 2>&1 <<'PY'
+import os
 import statistics
 from mcdenoise.runtime.denoiser import Denoiser
 from mcdenoise.runtime.frames import Frame
 from mcdenoise.training.harness import synthetic_frame
 from mcdenoise.training.methods import shipped_models
-for path in shipped_models():
+for path in os.environ.get("MODELS", "").split() or shipped_models():
     for prelude, bound in (("numpy", False), ("graph", False), ("graph", True)):
         den = Denoiser.load(path, providers=["CUDAExecutionProvider", "CPUExecutionProvider"], prelude=prelude,
                             io_binding=bound, log=lambda m: None)
