@@ -9,6 +9,9 @@
 # Usage: bash docs/results/albedo-history/others.sh [SET...]   (default: long-slow heldout-lamp_occluder)
 # Writes docs/results/albedo-history/<set>/others-<spp>spp.json (keys wskpn-3, wskpn-3-aa, wskpn-6,
 # wskpn-6-aa, oidn-fast, oidn-fast-aa); table.py reads them.
+# NBG (it also demodulates by the albedo, inside its graph's temporal stage):
+#   BASES="nbg-2l-1g nbg-2l-3g" PEERS= TAG=nbg bash docs/results/albedo-history/others.sh SET...
+# writes <set>/nbg-<spp>spp.json (keys nbg-2l-1g, nbg-2l-1g-aa, nbg-2l-3g, nbg-2l-3g-aa).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 sets=("${@:-long-slow}")
@@ -16,7 +19,9 @@ sets=("${@:-long-slow}")
 out=docs/results/albedo-history tmp=/tmp/albedo-history
 mkdir -p "$tmp"
 files=()
-for m in wskpn-3 wskpn-6; do
+read -r -a bases <<< "${BASES-wskpn-3 wskpn-6}"
+read -r -a peers <<< "${PEERS-oidn-fast oidn-fast-aa}"
+for m in "${bases[@]}"; do
   if [ -f "models_spec/$m-aa.toml" ]; then   # shipped since (wskpn-3-aa): its own spec file
     mcdenoise export "models/$m.onnx" --protocol-from "models_spec/$m-aa.toml" --out "$tmp/$m-aa.onnx"
     files+=("models/$m.onnx" "$tmp/$m-aa.onnx")
@@ -34,7 +39,7 @@ for set in "${sets[@]}"; do
   [ -f "data/$set/manifest.json" ] || { echo "others.sh: data/$set not rendered, skipped" >&2; continue; }
   mkdir -p "$out/$set"
   for spp in 1 4 8; do
-    mcdenoise evaluate "${files[@]}" oidn-fast oidn-fast-aa --no-oidn --data "data/$set" --spp $spp \
-      --warmup 8 --threads "$(nproc)" --json "$out/$set/others-${spp}spp.json"
+    mcdenoise evaluate "${files[@]}" ${peers[@]+"${peers[@]}"} --no-oidn --data "data/$set" --spp $spp \
+      --warmup 8 --threads "$(nproc)" --json "$out/$set/${TAG:-others}-${spp}spp.json"
   done
 done

@@ -10,7 +10,8 @@ accumulated albedo; peer-a02-<spp>spp.json when that was at a fixed 0.2, commit 
 <set>/runs-<spp>spp.json (train.sh's A/B, scored by eval.sh with TAG=runs), <set>/s7-<spp>spp.json
 (scale sitting 7, wskpn-6e-aa trained on the chain's shards: docs/results/scale/README.md, TAG=s7),
 <set>/others-<spp>spp.json (others.sh: wskpn-3 and wskpn-6 as shipped and with the albedo history,
-Open Image Denoise fast and fast-aa).
+Open Image Denoise fast and fast-aa), <set>/nbg-<spp>spp.json (others.sh with BASES="nbg-2l-1g nbg-2l-3g":
+the two shipped NBG files as shipped and with the albedo history).
 PSNR dB on tonemapped radiance (ANF Eq. 14) / TRMAE (Eq. 16), with history, after 8 warm-up frames."""
 from pathlib import Path
 
@@ -32,6 +33,8 @@ COLUMNS = {"wskpn-6e (shipped)": (("", "wskpn-6e"), ("a02-", "wskpn-6e")),
            "oidn-high-aa, K 4": (("peer-", "oidn-high-aa"),)}
 #: the second table: the other shipped kernel-predicting models, zero-shot, and their fast peer
 OTHERS = {m: (("others-", m),) for m in ("wskpn-3", "wskpn-3-aa", "wskpn-6", "wskpn-6-aa", "oidn-fast", "oidn-fast-aa")}
+#: the third: NBG, zero-shot
+NBG = {m: (("nbg-", m),) for m in ("nbg-2l-1g", "nbg-2l-1g-aa", "nbg-2l-3g", "nbg-2l-3g-aa")}
 
 
 def cell(r) -> str:
@@ -68,6 +71,11 @@ def main() -> None:
         print("wskpn-6e-aa's albedo entry, K 4), beside Open Image Denoise fast with the 1-spp albedo and the")
         print("accumulated one.\n")
         table(OTHERS)
+    if any((HERE / s / f"nbg-{spp}spp.json").exists() for s in SETS for spp in SPP):
+        print("\n## NBG (others.sh with BASES=\"nbg-2l-1g nbg-2l-3g\")\n")
+        print("The shipped NBG files as shipped and with the same albedo entry (\"-aa\"), zero-shot: NBG")
+        print("demodulates the colour by the albedo in its graph's temporal stage and re-modulates its output.\n")
+        table(NBG)
 
 if __name__ == "__main__":
     main()
