@@ -9,7 +9,7 @@
 # state on the host, and the default on a device, the prelude graphs with the state kept on the
 # device with IO binding; each row's graph time beside its whole frame).
 # MODELS="models/wskpn-3.onnx models/wskpn-6e-aa.onnx" limits both to those files (default: every
-# shipped model, 12 since 2026-12-06; anf-s and ndle-s are the slow ones when device time is short).
+# shipped model, 14 since 2026-12-06; anf-s and ndle-s are the slow ones when device time is short).
 set -euo pipefail
 site="$PWD/.gpu/site"
 mkdir -p "$site" "$OUT"
