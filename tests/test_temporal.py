@@ -269,8 +269,10 @@ def test_protocol_runs_the_same_on_numpy_and_torch(name):
         assert got["numpy"][part].keys() == got["torch"][part].keys()
         for k in got["numpy"][part]:
             np.testing.assert_allclose(got["numpy"][part][k], got["torch"][part][k], rtol=1e-6, atol=1e-6, err_msg=k)
-    if proto.accumulate:   # the colour fed is the accumulation, not the frame's colour
-        assert not np.allclose(got["numpy"]["feeds"]["color"], frames[1]["color"])
+    for layer, inp, _, _ in proto.accumulate:   # each accumulated layer fed is the accumulation, not the frame's own
+        assert not np.allclose(got["numpy"]["feeds"][inp], frames[1][layer]), inp
+    for layer in set(frames[1]) - {a[0] for a in proto.accumulate}:   # and nothing else is blended
+        np.testing.assert_array_equal(got["numpy"]["feeds"][layer], frames[1][layer], err_msg=layer)
     assert set(got["numpy"]["kept"]) == {s[0] for s in proto.state} | {proto.accum_key(a[1]) for a in proto.accumulate}
 
 
