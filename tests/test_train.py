@@ -94,6 +94,45 @@ def test_init_starts_a_new_run_from_another_runs_weights(tiny_dataset, tmp_path,
     assert "give one of them" in capsys.readouterr().err
 
 
+def test_init_from_an_exported_file_fine_tunes_its_weights(tiny_dataset, tmp_path, capsys):
+    # A user fine-tunes a shipped file on their own renders: --init FILE.onnx reads its weights back
+    # exactly, under its own spec or another of its type whose weights fit (nbg-2l-1g -> -aa).
+    import hashlib
+
+    train("nbg-2l-1g", tiny_dataset, tmp_path / "a", steps=2, **KW)
+    export_run(tmp_path / "a", tmp_path / "a.onnx")
+    train("nbg-2l-1g-aa", tiny_dataset, tmp_path / "b", steps=0, init=str(tmp_path / "a.onnx"), **KW)
+    a, b = _weights(tmp_path / "a"), _weights(tmp_path / "b")
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
+    cfg = json.loads((tmp_path / "b" / runs.CONFIG_FILE).read_text())
+    assert cfg["init"] == {"run": str((tmp_path / "a.onnx").resolve()), "step": 0, "chain_steps": 0,
+                           "sha256": hashlib.sha256((tmp_path / "a.onnx").read_bytes()).hexdigest()}
+    # the shipped file, then steps: Adam starts afresh and the weights move
+    shipped = runs.ROOT / "models" / "nbg-2l-1g.onnx"
+    train("nbg-2l-1g-aa", tiny_dataset, tmp_path / "c", steps=2, init=str(shipped), **KW)
+    c = _weights(tmp_path / "c")
+    import onnx
+    from onnx import numpy_helper
+
+    stored = {i.name: numpy_helper.to_array(i) for i in onnx.load(str(shipped)).graph.initializer}
+    assert any(not np.array_equal(stored[k], c[k].numpy()) for k in c if c[k].dtype.is_floating_point)
+    # refused with one clear line each: a file whose export folded batch norm (WSKPN), a file of
+    # another shape, another type, and a file that is no ONNX at all
+    out = tmp_path / "d"
+    cases = [("wskpn-3", runs.ROOT / "models" / "wskpn-3.onnx", "the export folded it"),
+             ("nbg-2l-1g", runs.ROOT / "models" / "nbg-2l-3g.onnx", "its weights do not fit spec nbg-2l-1g"),
+             ("wskpn-3", shipped, "not a model of type 'wskpn'")]
+    (tmp_path / "bad.onnx").write_bytes(b"not a protobuf at all")
+    cases.append(("nbg-2l-1g", tmp_path / "bad.onnx", "not a readable ONNX file"))
+    for spec, f, says in cases:
+        assert main(["train", spec, "--data", tiny_dataset, "--out", str(out), "--init", str(f)]) == 2, f
+        err = capsys.readouterr().err
+        assert says in err and "Traceback" not in err, err
+        assert not out.exists()
+
+
 def test_run_folder_is_the_record_and_exports(tiny_dataset, tmp_path):
     run = tmp_path / "run"
     row = train("wskpn-3", tiny_dataset, run, steps=2, **KW)

@@ -249,7 +249,10 @@ def add_arguments(p):
     p.add_argument("--init", default=None, metavar="RUN",
                    help="start a new run from RUN's weights and optimiser state (its spec, or another spec "
                         "of the same type whose weights fit, e.g. anf-s -> anf-sd), e.g. to continue training "
-                        "on shards rendered in a later sitting; its steps count from 0")
+                        "on shards rendered in a later sitting; its steps count from 0. RUN may also be an "
+                        "exported .onnx file (a shipped model, to fine-tune it on your own renders): its weights "
+                        "only, Adam starts afresh; files whose export folded batch norm into the convolutions "
+                        "(WSKPN) cannot be read back and need their run folder")
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--crop", type=int, default=None)
     p.add_argument("--window", type=int, default=None,
@@ -438,7 +441,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
     ``init``: a run folder whose checkpoint (weights and Adam moments) a new run starts from; the
     data, budget and schedule are this run's own, the step count starts at 0, and the config
     records the source run and its step (``init``), so a chain of sittings on different shards
-    stays traceable.
+    stays traceable. Or an exported ``.onnx`` file: its weights only (:func:`_onnx_checkpoint`;
+    the config records the file and its sha256, step and chain steps 0).
 
     ``loader_workers``: processes that build the next batches while the model trains
     (:func:`epoch_batches`); the run is the same with any number, so it is not part of the
@@ -553,7 +557,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
             "torch": torch.__version__, "argv": sys.argv, "processes": world,
             "max_sequences": max_sequences, "fireflies": fireflies, "test_data": os.path.abspath(test_data) if test_data else None,
             "init": None if init is None else {"run": os.path.abspath(init), "step": init_ckpt["step"],
-                                               "chain_steps": init_ckpt["chain_steps"]},
+                                               "chain_steps": init_ckpt["chain_steps"],
+                                               **({"sha256": init_ckpt["sha256"]} if "sha256" in init_ckpt else {})},
         }
         spec_path = spec.path if getattr(spec, "path", None) else Path(runs.ROOT / "models_spec" / f"{spec.name}.toml")
         _check_schedule(config)     # before the run folder exists
@@ -591,7 +596,8 @@ def train(spec_name: str, data: str, out: str, minutes: float | None = None,
         torch.set_rng_state(ckpt["torch_rng"].cpu())
     elif init_ckpt is not None:
         model.load_state_dict(init_ckpt["model"])      # fits: _init_checkpoint tried it
-        opt.load_state_dict(init_ckpt["optimizer"])
+        if init_ckpt["optimizer"] is not None:          # None from an .onnx file: Adam starts afresh
+            opt.load_state_dict(init_ckpt["optimizer"])
     # The average starts from the weights the run starts from: a resumed run's own average, an
     # --init run's source average where it kept one.
     ema_state, ema_updates, ema_model = None, 0, None
@@ -753,6 +759,8 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
     from mcdenoise.training.specs import build_model, load_spec
 
     src = Path(init)
+    if src.suffix == ".onnx" and src.is_file():
+        return _onnx_checkpoint(src, spec_name)
     if not (src / runs.CHECKPOINT_FILE).exists():
         raise FileNotFoundError(f"--init {src}: no {runs.CHECKPOINT_FILE} there")
     want = load_spec(spec_name)
@@ -771,6 +779,51 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
         raise ValueError(f"--init {init}: its weights do not fit spec {want.name} ({str(e).splitlines()[0]})") from None
     ckpt["chain_steps"] = ckpt["step"] + ((cfg.get("init") or {}).get("chain_steps") or 0)
     return ckpt
+
+
+def _onnx_checkpoint(path: Path, spec_name: str) -> dict:
+    """A checkpoint-like dict (``model``: the weights; ``optimizer`` None; ``step`` and
+    ``chain_steps`` 0; ``sha256`` of the file) read from an exported file of spec ``spec_name``'s
+    model type.
+
+    Every entry of the model's state dict (parameters and buffers) must be an initializer of the
+    file under its own name and shape. The exporter keeps them so for NBG, ANF and NDLE; WSKPN's
+    export folds each batch norm into its convolution, which cannot be undone into the training
+    form, so such a file is refused with a clear message rather than half loaded."""
+    import hashlib
+
+    import onnx
+    import torch
+    from onnx import numpy_helper
+    from mcdenoise.training.specs import build_model, load_spec
+
+    want = load_spec(spec_name)
+    try:
+        m = onnx.load(str(path))
+    except Exception as e:      # noqa: BLE001  (onnx raises DecodeError and others for a bad file)
+        raise ValueError(f"--init {path}: not a readable ONNX file ({type(e).__name__})") from None
+    meta = {p.key: p.value for p in m.metadata_props}
+    have_type = meta.get("mcdenoise.model_type")
+    if have_type is None:
+        raise ValueError(f"--init {path}: not an mcdenoise export (no mcdenoise.model_type in its metadata)")
+    if have_type != want.type:
+        raise ValueError(f"--init {path}: that file is a {meta.get('mcdenoise.spec_name')} ({have_type!r}), "
+                         f"not a model of type {want.type!r} like {want.name}")
+    inits = {i.name: i for i in m.graph.initializer}
+    model = build_model(want)
+    state = {}
+    for name, ref in model.state_dict().items():
+        if name not in inits:
+            raise ValueError(f"--init {path}: its weights cannot be read back into {want.name} ({name} is not "
+                             f"stored under its name: the export folded it); start from the run folder instead")
+        arr = numpy_helper.to_array(inits[name])
+        if tuple(arr.shape) != tuple(ref.shape):
+            raise ValueError(f"--init {path}: its weights do not fit spec {want.name} ({name} has shape "
+                             f"{tuple(arr.shape)}, the spec's model {tuple(ref.shape)})")
+        state[name] = torch.from_numpy(arr.copy()).to(ref.dtype)
+    model.load_state_dict(state)
+    return {"model": state, "optimizer": None, "step": 0, "chain_steps": 0,
+            "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
 
 
 def _datasets(config: dict, spec, cache_dtype: str, cache_dir: str | None = None):
