@@ -372,12 +372,12 @@ def load_exported(path: str | os.PathLike, spec=None):
     state = {}
     for name, tensor in model.state_dict().items():
         if name not in weights:
-            raise ExportError(f"{path}: no initializer {name!r} for the model's tensor of that name; "
-                              f"re-export it from its run folder (mcdenoise export RUN)")
+            raise ExportError(f"{path}: no initializer {name!r} for the model's tensor of that name (the "
+                              f"export folded it into another): its weights are only in its run folder")
         value = numpy_helper.to_array(weights[name])
         if tuple(value.shape) != tuple(tensor.shape):
             raise ExportError(f"{path}: initializer {name!r} is {list(value.shape)}, the model's tensor "
-                              f"{list(tensor.shape)}; re-export it from its run folder")
+                              f"{list(tensor.shape)}")
         state[name] = torch.from_numpy(value.copy()).to(tensor.dtype)
     model.load_state_dict(state)
     return spec, model, contract
@@ -386,7 +386,10 @@ def load_exported(path: str | os.PathLike, spec=None):
 def reexport(src: str | os.PathLike, out_path: str | os.PathLike, opset: int = DEFAULT_OPSET) -> ExportReport:
     """Export the model of an earlier export ``src`` again with the current graph code (the
     weights and the code hash that trained them carried over; see :func:`load_exported`)."""
-    spec, model, contract = load_exported(src)
+    try:
+        spec, model, contract = load_exported(src)
+    except ExportError as e:
+        raise ExportError(f"{e}; re-export it from its run folder (mcdenoise export RUN)") from None
     return export_model(spec, model, out_path, opset, code_hash=contract.code_hash)
 
 
@@ -434,7 +437,10 @@ def adopt_protocol(src: str | os.PathLike, out_path: str | os.PathLike, spec_pat
                                                 "trained_with", weights(was) or "its graph's fixed weights"),
                                             "trained_as": old.export.get("protocol_from", {}).get("trained_as", was.name)}}
     if new.input_names != was.input_names:
-        _, model, _ = load_exported(src, new)
+        try:
+            _, model, _ = load_exported(src, new)
+        except ExportError as e:
+            raise ExportError(f"{e}; export the model again from its run folder instead") from None
         export_model(new, model, out_path, code_hash=old.code_hash, info=info)
         return parse_contract({p.key: p.value for p in onnx.load(str(out_path), load_external_data=False).metadata_props})
     contract = build_contract(new, build_model(new), old.code_hash, info)

@@ -121,7 +121,7 @@ def test_init_from_an_exported_file_fine_tunes_its_weights(tiny_dataset, tmp_pat
     # refused with one clear line each: a file whose export folded batch norm (WSKPN), a file of
     # another shape, another type, and a file that is no ONNX at all
     out = tmp_path / "d"
-    cases = [("wskpn-3", runs.ROOT / "models" / "wskpn-3.onnx", "the export folded it"),
+    cases = [("wskpn-3", runs.ROOT / "models" / "wskpn-3.onnx", "the export folded it into another"),
              ("nbg-2l-1g", runs.ROOT / "models" / "nbg-2l-3g.onnx", "its weights do not fit spec nbg-2l-1g"),
              ("wskpn-3", shipped, "not a model of type 'wskpn'")]
     (tmp_path / "bad.onnx").write_bytes(b"not a protobuf at all")

@@ -784,45 +784,32 @@ def _init_checkpoint(init: str, spec_name: str) -> dict:
 def _onnx_checkpoint(path: Path, spec_name: str) -> dict:
     """A checkpoint-like dict (``model``: the weights; ``optimizer`` None; ``step`` and
     ``chain_steps`` 0; ``sha256`` of the file) read from an exported file of spec ``spec_name``'s
-    model type.
-
-    Every entry of the model's state dict (parameters and buffers) must be an initializer of the
-    file under its own name and shape. The exporter keeps them so for NBG, ANF and NDLE; WSKPN's
-    export folds each batch norm into its convolution, which cannot be undone into the training
-    form, so such a file is refused with a clear message rather than half loaded."""
+    model type by :func:`mcdenoise.export.onnx_export.load_exported` (every parameter and buffer
+    from the initializer of its name: NBG, ANF and NDLE exports keep them; WSKPN's fold each batch
+    norm into its convolution, which cannot be undone into the training form, so such a file is
+    refused with a clear message rather than half loaded)."""
     import hashlib
 
     import onnx
-    import torch
-    from onnx import numpy_helper
-    from mcdenoise.training.specs import build_model, load_spec
+    from mcdenoise.export.onnx_export import ExportError, load_exported
+    from mcdenoise.training.specs import load_spec
 
     want = load_spec(spec_name)
     try:
-        m = onnx.load(str(path))
+        meta = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
     except Exception as e:      # noqa: BLE001  (onnx raises DecodeError and others for a bad file)
         raise ValueError(f"--init {path}: not a readable ONNX file ({type(e).__name__})") from None
-    meta = {p.key: p.value for p in m.metadata_props}
     have_type = meta.get("mcdenoise.model_type")
     if have_type is None:
         raise ValueError(f"--init {path}: not an mcdenoise export (no mcdenoise.model_type in its metadata)")
     if have_type != want.type:
         raise ValueError(f"--init {path}: that file is a {meta.get('mcdenoise.spec_name')} ({have_type!r}), "
                          f"not a model of type {want.type!r} like {want.name}")
-    inits = {i.name: i for i in m.graph.initializer}
-    model = build_model(want)
-    state = {}
-    for name, ref in model.state_dict().items():
-        if name not in inits:
-            raise ValueError(f"--init {path}: its weights cannot be read back into {want.name} ({name} is not "
-                             f"stored under its name: the export folded it); start from the run folder instead")
-        arr = numpy_helper.to_array(inits[name])
-        if tuple(arr.shape) != tuple(ref.shape):
-            raise ValueError(f"--init {path}: its weights do not fit spec {want.name} ({name} has shape "
-                             f"{tuple(arr.shape)}, the spec's model {tuple(ref.shape)})")
-        state[name] = torch.from_numpy(arr.copy()).to(ref.dtype)
-    model.load_state_dict(state)
-    return {"model": state, "optimizer": None, "step": 0, "chain_steps": 0,
+    try:
+        _, model, _ = load_exported(path, spec=want)
+    except ExportError as e:
+        raise ValueError(f"--init {path}: its weights do not fit spec {want.name} ({e})") from None
+    return {"model": model.state_dict(), "optimizer": None, "step": 0, "chain_steps": 0,
             "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
 
 
