@@ -3,8 +3,10 @@
 # on the sets this machine has rendered (each by its TestSet.render_args(), training/testsets.py;
 # a set not rendered is skipped). Sequences through the driver with history, after 8 warm-up
 # frames, at 1, 4 and 8 spp; stills (first frames, no history) at 1, 2, 4 and 8 spp.
-# Usage: bash docs/results/nbg-retrain/eval.sh [SET...]   (default: the five long and hand-made sets)
-# Writes docs/results/nbg-retrain/<set>/<spp>spp.json and stills-<spp>spp.json; table.py reads them.
+# Usage: bash docs/results/nbg-retrain/eval.sh [SET...]   (default: the five long and hand-made sets;
+# curves-test, 4 held-out procedural scenes x 8 frames of 128x128 (docs/results/curves/data.sh), with WARMUP=4)
+# Writes docs/results/nbg-retrain/<set>/[ft-]<spp>spp.json and [ft-]stills-<spp>spp.json (ft-: the
+# retrained files); table.py reads them.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 out=docs/results/nbg-retrain tmp=/tmp/nbg-retrain
@@ -13,16 +15,21 @@ sets=("${@:-long-slow long-medium long-fast heldout-room_window heldout-lamp_occ
 for spec in nbg-2l-1g-aa nbg-2l-3g-aa; do
   [ -f "$tmp/$spec-ft.onnx" ] || mcdenoise export "$out/$spec-ft" --out "$tmp/$spec-ft.onnx"
 done
-files=(models/nbg-2l-1g-aa.onnx "$tmp/nbg-2l-1g-aa-ft.onnx" models/nbg-2l-3g-aa.onnx "$tmp/nbg-2l-3g-aa-ft.onnx")
+# evaluate names a method by its spec, so the shipped and the retrained files go in separate runs
+shipped=(models/nbg-2l-1g-aa.onnx models/nbg-2l-3g-aa.onnx)
+retrained=("$tmp/nbg-2l-1g-aa-ft.onnx" "$tmp/nbg-2l-3g-aa-ft.onnx")
 for set in "${sets[@]}"; do
   [ -f "data/$set/manifest.json" ] || { echo "eval.sh: data/$set not rendered, skipped" >&2; continue; }
   mkdir -p "$out/$set"
-  for spp in 1 4 8; do
-    mcdenoise evaluate "${files[@]}" --no-oidn --data "data/$set" --spp $spp --warmup 8 \
-      --threads "$(nproc)" --json "$out/$set/${spp}spp.json"
-  done
-  for spp in 1 2 4 8; do
-    mcdenoise evaluate "${files[@]}" --no-oidn --data "data/$set" --spp $spp --stills \
-      --threads "$(nproc)" --json "$out/$set/stills-${spp}spp.json"
+  for which in shipped ft; do
+    if [ $which = shipped ]; then files=("${shipped[@]}") pre=""; else files=("${retrained[@]}") pre="ft-"; fi
+    for spp in 1 4 8; do
+      mcdenoise evaluate "${files[@]}" --no-oidn --data "data/$set" --spp $spp --warmup "${WARMUP:-8}" \
+        --threads "$(nproc)" --json "$out/$set/$pre${spp}spp.json"
+    done
+    for spp in 1 2 4 8; do
+      mcdenoise evaluate "${files[@]}" --no-oidn --data "data/$set" --spp $spp --stills \
+        --threads "$(nproc)" --json "$out/$set/${pre}stills-${spp}spp.json"
+    done
   done
 done

@@ -2,9 +2,9 @@
 
     python docs/results/nbg-retrain/table.py > docs/results/nbg-retrain/table.md
 
-Reads this folder's evaluations (eval.sh, ``mcdenoise evaluate --json``): <set>/<spp>spp.json
+Reads this folder's evaluations (eval.sh, ``mcdenoise evaluate --json``): <set>/[ft-]<spp>spp.json
 (sequences with history, after 8 warm-up frames: PSNR dB on tonemapped radiance, ANF Eq. 14 /
-TRMAE, Eq. 16) and <set>/stills-<spp>spp.json (first frames, no history: PSNR). For context, the
+TRMAE, Eq. 16) and <set>/[ft-]stills-<spp>spp.json (first frames, no history: PSNR). For context, the
 peers' sequence scores committed in docs/results/albedo-history (the same set, rendered by the same
 command on an earlier machine): wskpn-3-aa and Open Image Denoise fast and high."""
 from pathlib import Path
@@ -13,22 +13,25 @@ from mcdenoise.training.evaluate import load_results
 
 HERE = Path(__file__).resolve().parent
 AH = HERE.parent / "albedo-history"
-SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout-lamp_occluder")
-MODELS = ("nbg-2l-1g-aa", "nbg-2l-1g-aa-ft", "nbg-2l-3g-aa", "nbg-2l-3g-aa-ft")
+SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout-lamp_occluder", "curves-test")
+#: column -> (file prefix, method key): evaluate names a method by its spec, so the retrained
+#: files' scores are in the ft- files under the same keys
+MODELS = {"nbg-2l-1g-aa": ("", "nbg-2l-1g-aa"), "nbg-2l-1g-aa-ft": ("ft-", "nbg-2l-1g-aa"),
+          "nbg-2l-3g-aa": ("", "nbg-2l-3g-aa"), "nbg-2l-3g-aa-ft": ("ft-", "nbg-2l-3g-aa")}
 PEERS = {"wskpn-3-aa": "others-", "oidn-fast": "others-", "oidn-high": ""}
 
 
 def main() -> None:
-    print("## Sequences with history, after 8 warm-up frames: PSNR dB / TRMAE\n")
+    print("## Sequences with history, after 8 warm-up frames (curves-test: 4): PSNR dB / TRMAE\n")
     cols = list(MODELS) + [f"{p} (earlier render)" for p in PEERS]
     print("| set | spp | " + " | ".join(cols) + " |")
     print("|---|---:|" + "---:|" * len(cols))
     for s in SETS:
         for spp in (1, 4, 8):
-            ours = load_results(HERE / s / f"{spp}spp.json")
-            if not ours:
+            ours = {m: load_results(HERE / s / f"{pre}{spp}spp.json").get(k) for m, (pre, k) in MODELS.items()}
+            if not any(ours.values()):
                 continue
-            cells = [ours.get(m) for m in MODELS]
+            cells = list(ours.values())
             cells += [load_results(AH / s / f"{pre}{spp}spp.json").get(p) for p, pre in PEERS.items()]
             print(f"| {s} | {spp} | " + " | ".join("-" if r is None else f"{r['psnr']:.2f} / {r['trmae']:.3f}"
                                                     for r in cells) + " |")
@@ -36,11 +39,11 @@ def main() -> None:
     print("| set | model | 1 | 2 | 4 | 8 | monotonic |")
     print("|---|---|---:|---:|---:|---:|---|")
     for s in SETS:
-        res = {spp: load_results(HERE / s / f"stills-{spp}spp.json", after_warmup=False) for spp in (1, 2, 4, 8)}
-        if not all(res.values()):
-            continue
-        for m in MODELS:
-            p = [res[spp][m]["psnr"] for spp in (1, 2, 4, 8)]
+        for m, (pre, k) in MODELS.items():
+            res = [load_results(HERE / s / f"{pre}stills-{spp}spp.json", after_warmup=False).get(k) for spp in (1, 2, 4, 8)]
+            if not all(res):
+                continue
+            p = [r["psnr"] for r in res]
             mono = all(b > a for a, b in zip(p, p[1:]))
             print(f"| {s} | {m} | " + " | ".join(f"{v:.2f}" for v in p) + f" | {'yes' if mono else 'no'} |")
 
