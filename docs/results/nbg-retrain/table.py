@@ -2,9 +2,9 @@
 
     python docs/results/nbg-retrain/table.py > docs/results/nbg-retrain/table.md
 
-Reads this folder's evaluations (eval.sh, ``mcdenoise evaluate --json``): <set>/[ft-]<spp>spp.json
+Reads this folder's evaluations (eval.sh, ``mcdenoise evaluate --json``): <set>/[ft-|lr5e-5-]<spp>spp.json
 (sequences with history, after 8 warm-up frames: PSNR dB on tonemapped radiance, ANF Eq. 14 /
-TRMAE, Eq. 16) and <set>/[ft-]stills-<spp>spp.json (first frames, no history: PSNR). For context, the
+TRMAE, Eq. 16; ft-: train.sh's runs, lr5e-5-: the third arm, scored by hand: README) and <set>/[ft-|lr5e-5-]stills-<spp>spp.json (first frames, no history: PSNR). For context, the
 peers' sequence scores committed in docs/results/albedo-history (the same set, rendered by the same
 command on an earlier machine): wskpn-3-aa and Open Image Denoise fast and high."""
 from pathlib import Path
@@ -17,6 +17,7 @@ SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout
 #: column -> (file prefix, method key): evaluate names a method by its spec, so the retrained
 #: files' scores are in the ft- files under the same keys
 MODELS = {"nbg-2l-1g-aa": ("", "nbg-2l-1g-aa"), "nbg-2l-1g-aa-ft": ("ft-", "nbg-2l-1g-aa"),
+          "nbg-2l-1g-aa-lr5e-5": ("lr5e-5-", "nbg-2l-1g-aa"),
           "nbg-2l-3g-aa": ("", "nbg-2l-3g-aa"), "nbg-2l-3g-aa-ft": ("ft-", "nbg-2l-3g-aa")}
 PEERS = {"wskpn-3-aa": "others-", "oidn-fast": "others-", "oidn-high": ""}
 
