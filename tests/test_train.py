@@ -126,6 +126,12 @@ def test_init_from_an_exported_file_fine_tunes_its_weights(tiny_dataset, tmp_pat
              ("wskpn-3", shipped, "not a model of type 'wskpn'")]
     (tmp_path / "bad.onnx").write_bytes(b"not a protobuf at all")
     cases.append(("nbg-2l-1g", tmp_path / "bad.onnx", "not a readable ONNX file"))
+    from onnx import TensorProto, helper   # a valid ONNX file that no mcdenoise export wrote
+
+    io = [helper.make_tensor_value_info(n, TensorProto.FLOAT, [1]) for n in ("x", "y")]
+    onnx.save(helper.make_model(helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", io[:1], io[1:])),
+              str(tmp_path / "plain.onnx"))
+    cases.append(("nbg-2l-1g", tmp_path / "plain.onnx", "not an mcdenoise export"))
     for spec, f, says in cases:
         assert main(["train", spec, "--data", tiny_dataset, "--out", str(out), "--init", str(f)]) == 2, f
         err = capsys.readouterr().err

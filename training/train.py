@@ -792,6 +792,7 @@ def _onnx_checkpoint(path: Path, spec_name: str) -> dict:
 
     import onnx
     from mcdenoise.export.onnx_export import ExportError, load_exported
+    from mcdenoise.runtime.contract import KEY_MODEL_TYPE, KEY_SPEC_NAME
     from mcdenoise.training.specs import load_spec
 
     want = load_spec(spec_name)
@@ -799,11 +800,11 @@ def _onnx_checkpoint(path: Path, spec_name: str) -> dict:
         meta = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
     except Exception as e:      # noqa: BLE001  (onnx raises DecodeError and others for a bad file)
         raise ValueError(f"--init {path}: not a readable ONNX file ({type(e).__name__})") from None
-    have_type = meta.get("mcdenoise.model_type")
+    have_type = meta.get(KEY_MODEL_TYPE)
     if have_type is None:
-        raise ValueError(f"--init {path}: not an mcdenoise export (no mcdenoise.model_type in its metadata)")
+        raise ValueError(f"--init {path}: not an mcdenoise export (no {KEY_MODEL_TYPE} in its metadata)")
     if have_type != want.type:
-        raise ValueError(f"--init {path}: that file is a {meta.get('mcdenoise.spec_name')} ({have_type!r}), "
+        raise ValueError(f"--init {path}: that file is a {meta.get(KEY_SPEC_NAME)} ({have_type!r}), "
                          f"not a model of type {want.type!r} like {want.name}")
     try:
         _, model, _ = load_exported(path, spec=want)
