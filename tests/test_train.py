@@ -188,6 +188,28 @@ def test_window_loss_adds_the_temporal_term_on_frame_differences():
     assert torch.allclose(d_flicker, want)
 
 
+def test_the_gamma_losss_temporal_term_charges_darkening_and_brightening_alike():
+    # NBG's l1_gamma compares in the gamma domain, which clips below 0: a frame difference put
+    # through it lost every darkening (the temporal term saw only half the flicker, and pulled
+    # brightenings toward the reference's with gamma's infinite slope at 0). The differences are
+    # taken after gamma instead.
+    from mcdenoise.runtime.transfer import gamma
+    from mcdenoise.training.train import LOSSES, window_loss
+
+    l1g = LOSSES["l1_gamma"]
+    refs = torch.full((1, 2, 3, 4, 4), 0.25)                         # a still scene
+    darker = [refs[:, 0], refs[:, 1] * 0.8]
+    brighter = [refs[:, 0], refs[:, 1] * 1.25]
+    terms = []
+    for outs in (darker, brighter):
+        d = window_loss(l1g, outs, refs, 0.25) - window_loss(l1g, outs, refs)
+        want = 0.25 * ((gamma(outs[1]) - gamma(outs[0])) - (gamma(refs[:, 1]) - gamma(refs[:, 0]))).abs().mean()
+        assert torch.allclose(d, want) and float(d) > 0.005
+        terms.append(float(d))
+    # a step down and its inverse step up cost about the same (0.8 and 1.25: 0.051 and 0.057 in gamma)
+    assert terms[0] == pytest.approx(terms[1], rel=0.15)
+
+
 def test_the_coarse_term_charges_a_loss_of_energy_not_zero_mean_noise(tiny_dataset, tmp_path):
     # A frame 10% too dark everywhere and one off by +-10% in a checkerboard pay about the same
     # per-pixel SMAPE; only the darkening survives in the 8x8 block means.
