@@ -9,6 +9,9 @@
 # Never train beside a queue: at nice 19 two renders still made a 2-thread wskpn-6 training step
 # 10-60x slower on this 2-core VM (6-40 s against 0.6 s alone); pause them (pkill -STOP -f
 # "mcdenoise render", then -CONT) or stop them (TERM: they resume at the frame in flight).
+# (Under autogroup scheduling nice -n 19 means nothing across sessions, which may explain much of
+# that, not measured; the renders now run under docs/nice19.sh, which also lowers their session's
+# group. Pausing is still surest.)
 set -uo pipefail
 cd "$(dirname "$0")/.."
 data=${1:-data}
@@ -23,12 +26,12 @@ from mcdenoise.training.testsets import HELD_OUT as H, LONG_SEQUENCES as L
 for s in (L["slow"], L["medium"], H["room_window"], H["lamp_occluder"], L["fast"]):
     print(" ".join(s.render_args()))'
 } | while read -r args; do
-  nice -n 19 mcdenoise ${args//data\//$data/} --workers 1 < /dev/null || echo "render-queue: failed: $args" >&2
+  docs/nice19.sh mcdenoise ${args//data\//$data/} --workers 1 < /dev/null || echo "render-queue: failed: $args" >&2
 done
 # Training shards at the issue's scale (256x256, 8 stored spp, half enclosed rooms): one folder
 # per seed under $data/train-256, merged by the data set loader; 32 scenes x 8 frames each.
 for seed in ${SHARDS:-20 21 22 23 24 25 26 27}; do
-  nice -n 19 mcdenoise render --out "$data/train-256/shard-$seed" --scenes 32 --frames 8 --size 256x256 \
+  docs/nice19.sh mcdenoise render --out "$data/train-256/shard-$seed" --scenes 32 --frames 8 --size 256x256 \
     --spp 8 --ref-spp 256 --seed "$seed" --enclosed 0.5 --workers 1 < /dev/null \
     || echo "render-queue: failed: shard $seed" >&2
 done

@@ -24,7 +24,9 @@
 #   TRAIN_MIN   the training budget in minutes, on every core (its cosine rate is planned
 #               over STEPS, default 2400, and stops at whichever comes first). Train with
 #               nothing else running: a render at nice 19 beside it made a wskpn-6 step 10-60x
-#               slower here (0.6 s alone on 2 threads; 6-40 s beside two renders).
+#               slower here (0.6 s alone on 2 threads; 6-40 s beside two renders); autogroup
+#               scheduling, which ignores nice across sessions, may explain much of it (not
+#               measured; docs/nice19.sh, used below, lowers the render's session too).
 # Shards: data/train-256/shard-<seed>, 32 scenes x 8 frames, 8 stored spp, 256-spp references,
 # half enclosed rooms (docs/render-queue.sh). Never give two sittings of one chain the same seed.
 set -euo pipefail
@@ -52,7 +54,7 @@ if [ "$render_min" != 0 ]; then
       for ((i = w; i < ${#queue[@]}; i += cores)); do
         seed=${queue[$i]}; left=$(( deadline - $(date +%s) ))
         [ "$left" -gt 0 ] || break
-        timeout "$left" nice -n 19 mcdenoise render --out "data/train-256/shard-$seed" \
+        timeout "$left" docs/nice19.sh mcdenoise render --out "data/train-256/shard-$seed" \
           --scenes 32 --frames 8 --size 256x256 --spp 8 --ref-spp 256 --seed "$seed" --enclosed 0.5 \
           --workers 1 < /dev/null >> "data/render-shard-$seed.log" 2>&1 || true    # a timeout ends a render on purpose
       done
