@@ -4,7 +4,7 @@
 
 Reads this folder's evaluations (eval.sh, ``mcdenoise evaluate --json``): <set>/[ft-|lr5e-5-]<spp>spp.json
 (sequences with history, after 8 warm-up frames: PSNR dB on tonemapped radiance, ANF Eq. 14 /
-TRMAE, Eq. 16; ft-: train.sh's runs, lr5e-5-: the third arm, scored by hand: README; <arm>-: arms.sh) and <set>/[ft-|lr5e-5-]stills-<spp>spp.json (first frames, no history: PSNR). For context, the
+TRMAE, Eq. 16; ft-: train.sh's runs, nf-: the same without outliers (TAG=nf FIREFLIES=0), lr5e-5-: the third arm, scored by hand: README; <arm>-: arms.sh) and <set>/[ft-|lr5e-5-]stills-<spp>spp.json (first frames, no history: PSNR). For context, the
 peers' sequence scores committed in docs/results/albedo-history (the same set, rendered by the same
 command on an earlier machine): wskpn-3-aa and Open Image Denoise fast and high."""
 from pathlib import Path
@@ -18,7 +18,9 @@ SETS = ("long-slow", "long-medium", "long-fast", "heldout-room_window", "heldout
 #: files' scores are in the ft- files under the same keys
 MODELS = {"nbg-2l-1g-aa": ("", "nbg-2l-1g-aa"), "nbg-2l-1g-aa-ft": ("ft-", "nbg-2l-1g-aa"),
           "nbg-2l-1g-aa-lr5e-5": ("lr5e-5-", "nbg-2l-1g-aa"),
-          "nbg-2l-3g-aa": ("", "nbg-2l-3g-aa"), "nbg-2l-3g-aa-ft": ("ft-", "nbg-2l-3g-aa")}
+          "nbg-2l-1g-aa-nf": ("nf-", "nbg-2l-1g-aa"),
+          "nbg-2l-3g-aa": ("", "nbg-2l-3g-aa"), "nbg-2l-3g-aa-ft": ("ft-", "nbg-2l-3g-aa"),
+          "nbg-2l-3g-aa-nf": ("nf-", "nbg-2l-3g-aa")}
 #: arms.sh's one-factor arms from nbg-2l-1g-aa, each against the shipped file and the full fine-tune
 #: (row -> file prefix; the method key is nbg-2l-1g-aa in every file)
 ARMS = {"shipped nbg-2l-1g-aa": "", "ft (all four changes)": "ft-", "arm orig (none)": "orig-",
