@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 15: why did the NBG fine-tune (train.sh) lose? One factor of its recipe at a time, each arm
-# from the same start (models/nbg-2l-1g-aa.onnx), on the same data (data/nbg-train), steps, rate and
+# from the same start (the zero-shot nbg-2l-1g-aa file, common.sh; models/nbg-2l-1g-aa.onnx is that file), on the same data (data/nbg-train), steps, rate and
 # seed as nbg-2l-1g-aa-ft, so an arm that keeps the shipped file's 1-spp score names the cause:
 #   spp1     --spp 1                 (ft: spp drawn from 1, 2, 4, 8)
 #   win2     --window 2              (ft: 8-frame windows; the loss sees the history-free frame 1/8 as often)
@@ -36,7 +36,7 @@ train_arm() {
   elif [ -f "$run/checkpoint.pt" ]; then
     echo "arms.sh: $arm finished"; return 0
   else
-    resume="--init models/$spec.onnx"
+    resume="--init $(zero_shot $spec)"
   fi
   # shellcheck disable=SC2086  # the arm's flags are words
   mcdenoise train "$spec" --data data/nbg-train --out "$run" $resume ${ARM[$arm]} \
@@ -45,25 +45,18 @@ train_arm() {
   mcdenoise export "$run" --out "$tmp/arm-$arm.onnx"
 }
 
+. "$out/common.sh"
 eval_arm() {
-  local set=$1 arm=$2 file="$tmp/arm-$2.onnx" spp
+  local set=$1 arm=$2 file="$tmp/arm-$2.onnx"
   [ -f "$file" ] || mcdenoise export "$out/arm-$arm" --out "$file"
-  mkdir -p "$out/$set"
-  for spp in 1 4 8; do
-    mcdenoise evaluate "$file" --no-oidn --data "data/$set" --spp $spp --warmup "${WARMUP:-8}" \
-      --threads "$(nproc)" --json "$out/$set/$arm-${spp}spp.json"
-  done
-  for spp in 1 2 4 8; do
-    mcdenoise evaluate "$file" --no-oidn --data "data/$set" --spp $spp --stills \
-      --threads "$(nproc)" --json "$out/$set/$arm-stills-${spp}spp.json"
-  done
+  score "$set" "$arm-" "$file"
 }
 
 case "${1:-}" in
   train)
     shift; arms=("${@:-$ALL}"); [ $# -gt 0 ] || read -r -a arms <<< "$ALL"
     [ -f data/nbg-train/manifest.json ] || { echo "arms.sh: data/nbg-train missing: run train.sh first" >&2; exit 2; }
-    export -f train_arm; export out tmp spec ALL
+    export -f train_arm zero_shot; export out tmp spec ALL
     for a in "${arms[@]}"; do echo "$a"; done | \
       xargs -P 2 -I{} bash -c "$(declare -p ARM); train_arm {}" ;;
   eval)

@@ -17,6 +17,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../../.."
 out=docs/results/nbg-retrain tmp=/tmp/nbg-retrain tag=${TAG:-ft}
 mkdir -p "$tmp"
+. "$out/common.sh"
 [ -f data/nbg-train/manifest.json ] || mcdenoise render --out data/nbg-train --scenes 48 --frames 8 --spp 8 \
   --ref-spp 256 --size 128x128 --seed 12 --enclosed 0.5 --workers 2 < /dev/null
 for spec in nbg-2l-1g-aa nbg-2l-3g-aa; do
@@ -26,7 +27,7 @@ for spec in nbg-2l-1g-aa nbg-2l-3g-aa; do
   elif [ -f "$run/checkpoint.pt" ]; then
     continue
   else
-    resume=(--init "models/$spec.onnx")
+    resume=(--init "$(zero_shot "$spec")")     # models/nbg-2l-3g-aa.onnx ships retrained since 2026-12-07
   fi
   mcdenoise train "$spec" --data data/nbg-train --out "$run" "${resume[@]}" \
     --spp 1 2 4 8 --window 8 --temporal-weight 0.25 --fireflies "${FIREFLIES:-0.001}" --steps "${STEPS:-1200}" --lr 3e-4 \
