@@ -188,7 +188,7 @@ def test_window_loss_adds_the_temporal_term_on_frame_differences():
     assert torch.allclose(d_flicker, want)
 
 
-def test_the_gamma_losss_temporal_term_charges_darkening_and_brightening_alike():
+def test_the_gamma_loss_temporal_term_charges_darkening_and_brightening_alike():
     # NBG's l1_gamma compares in the gamma domain, which clips below 0: a frame difference put
     # through it lost every darkening (the temporal term saw only half the flicker, and pulled
     # brightenings toward the reference's with gamma's infinite slope at 0). The differences are

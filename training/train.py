@@ -95,8 +95,9 @@ def window_loss(loss_fn, outs: list, refs, temporal_weight: float = 0.0, coarse_
     frame differences (output_t − output_t−1 against reference_t − reference_t−1, averaged over
     the T − 1 pairs; ANF §4's temporal term), which penalises flicker the per-frame term
     cannot see (a loss with a ``frame_differences(out, out_prev, ref, ref_prev)`` attribute
-    compares the differences its own way: :func:`_l1_gamma_differences`), plus ``coarse_weight`` times the same loss of :data:`COARSE_BLOCK`-pixel block
-    means of each frame (ours, issue 15). Why: the wskpn-6e runs come out 4-10% darker than the
+    compares the differences its own way: :func:`_l1_gamma_differences`), plus
+    ``coarse_weight`` times the same loss of :data:`COARSE_BLOCK`-pixel block means of each
+    frame (ours, issue 15). Why: the wskpn-6e runs come out 4-10% darker than the
     reference on the held-out lamp_occluder scene, where the noisy input is not (0.999), and most
     of their gap to Open Image Denoise is at scales of 8 pixels and more
     (docs/results/long/error_probe.txt). A per-pixel relative loss is least, where a pixel's true
