@@ -21,7 +21,11 @@
 # A dry run on a CPU machine, before spending GPU minutes (what the last session checked):
 #   OUT=/tmp/gpu-dry DEVICE=cpu VARIANT=auto SIZE=64x64 REF_SPP=16 bash docs/results/device/gpu_train.sh wskpn-3,ndle-s 6 0.3
 # (2026-12-02, 2 vCPUs: render 79 s, trains 46 and 74 s, both run folders exported here; with one
-# scene the trainer stops at once: its validation split, by scene seed, is empty)
+# scene the trainer stops at once: its validation split, by scene seed, is empty. Again 2026-12-07
+# with the next session's planned command, on today's code: OUT=/tmp/gpu-dry DEVICE=cpu VARIANT=auto
+# SIZE=64x64 REF_SPP=16 SEED=41 FIREFLIES=0.001 INIT=docs/results/scale/wskpn-6e-6 LOADER_WORKERS=1
+# bash docs/results/device/gpu_train.sh wskpn-6e-aa 6 0.3: render 79 s, train 484 s beside two other
+# trainings, exported here)
 set -euo pipefail
 spec=${1:-wskpn-6}; scenes=${2:-32}; minutes=${3:-4}
 device=${DEVICE:-cuda}; variant=${VARIANT:-cuda_ad_rgb}; size=${SIZE:-256x256}; ref_spp=${REF_SPP:-256}
