@@ -295,10 +295,15 @@ def test_learning_curves_train_every_variant_and_resume(tiny_dataset, tmp_path):
     """curves: one run per (spec value, training-set size), each scoring the test folder at
     every validation; run again with more steps, every run resumes and its curve grows."""
     from mcdenoise.training.curves import spec_variant
-    from mcdenoise.training.specs import load_spec, parse_spec
+    from mcdenoise.training.specs import SpecError, build_model, load_spec, parse_spec
 
     text = spec_variant(load_spec("wskpn-3").path.read_text(), "widths", "[8]")
     assert parse_spec(text).params["widths"] == (8,) and parse_spec(text).name == "wskpn-3-widths-8"
+    # a key the spec leaves at its default is added; one its type lacks is refused on building
+    added = parse_spec(spec_variant(load_spec("wskpn-3").path.read_text(), "conv", "3"))
+    assert added.params["conv"] == 3 and added.name == "wskpn-3-conv-3"
+    with pytest.raises(SpecError, match="unknown key 'nonsense'"):
+        build_model(parse_spec(spec_variant(load_spec("wskpn-3").path.read_text(), "nonsense", "3")))
     argv = ["curves", "wskpn-3", "--data", tiny_dataset, "--test", tiny_dataset, "--out", str(tmp_path / "c"),
             "--sequences", "1", "--vary", "widths", "[4]", "[8]", "--steps", "2", "--eval-every", "1",
             "--batch-size", "2", "--crop", "32"]

@@ -10,7 +10,8 @@ import torch
 
 from mcdenoise.training.models import example_inputs
 from mcdenoise.training.models.common import emitter_albedo
-from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, RepVGGBlock, ReconstructionStage,
+from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, ImportanceNet,
+                                   RepVGGBlock, ReconstructionStage,
                                    WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, downsample2,
                                    fuse_kernels, fusion_factors, importance_weights, kernel_exponentials,
                                    pad_to_multiple, temporal_accumulate, upsample2)
@@ -166,13 +167,14 @@ def test_lights_demodulate_by_one_and_the_network_sees_them():
 # RepVGG re-parameterisation
 # ----------------------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("size", [5, 3])
 @pytest.mark.parametrize("batchnorm", [True, False])
 @pytest.mark.parametrize("cin,cout,act", [(6, 6, True), (5, 7, True), (7, 4, False)])
-def test_repvgg_fused_equals_multi_branch(batchnorm, cin, cout, act):
+def test_repvgg_fused_equals_multi_branch(batchnorm, cin, cout, act, size):
     """float64: fused == multi-branch to 1e-12 (the fusion is exact algebra); float32: 1e-5
     relative to the output's largest magnitude (rounding of 4 summed convolutions)."""
     gen = torch.Generator().manual_seed(cin * 10 + cout)
-    block = RepVGGBlock(cin, cout, act=act, batchnorm=batchnorm)
+    block = RepVGGBlock(cin, cout, act=act, batchnorm=batchnorm, size=size)
     _randomise_bn(block, gen)
     block.eval()
     x = torch.randn(2, cin, 11, 9, generator=gen)
@@ -183,8 +185,35 @@ def test_repvgg_fused_equals_multi_branch(batchnorm, cin, cout, act):
     assert (ref64 - fused64).abs().max() <= 1e-12 * ref64.abs().max()
     assert (ref32 - fused32).abs().max() <= 1e-5 * ref32.abs().max()
     assert fused64.shape == ref64.shape == (2, cout, 11, 9)
+    assert block.fuse().conv.kernel_size == (size, size)
     if act:
         assert (ref32 >= 0).all() and (ref32 == 0).any()
+
+
+def test_conv_3_blocks_have_no_5x5_branch_and_a_7x7_receptive_field():
+    """``conv = 3``: every block is 3x3 + 1x1 (+ identity), so three blocks see 7x7 pixels: a
+    change of one input pixel moves the importance maps within 3 pixels of it and no further
+    (with ``conv = 5``: 6 pixels)."""
+    for conv, reach in ((3, 3), (5, 6)):
+        params = WSKPNParams(blocks=3, widths=(8,), kernel_sizes=(3, 5), conv=conv)
+        net = ImportanceNet(10, 8, 3, 4, batchnorm=False, conv=conv)
+        assert all((m.branch5 is None) == (conv == 3) for m in net.modules() if isinstance(m, RepVGGBlock))
+        torch.manual_seed(0)
+        x = torch.rand(1, 10, 21, 21)
+        y = x.clone()
+        y[0, :, 10, 10] += 1.0
+        with torch.no_grad():
+            d = (net(y)[0] - net(x)[0]).abs().sum(dim=(0, 1))
+        rows, cols = torch.nonzero(d > 0, as_tuple=True)
+        assert int(rows.min()) == 10 - reach and int(rows.max()) == 10 + reach
+        assert int(cols.min()) == 10 - reach and int(cols.max()) == 10 + reach
+        assert params.conv == conv
+
+
+@pytest.mark.parametrize("conv", [1, 4, 7])
+def test_conv_sizes_other_than_3_and_5_are_refused(conv):
+    with pytest.raises(ValueError, match="conv: must be 3 or 5"):
+        WSKPNParams(blocks=3, widths=(8,), conv=conv)
 
 
 @pytest.mark.parametrize("name", WSKPN_SPECS)

@@ -25,14 +25,17 @@ Y = "test_psnr"
 
 
 def spec_variant(text: str, key: str, value: str) -> str:
-    """The spec TOML ``text`` with ``key = value`` set in its ``[params]`` table (a key the
-    table already has; the value as TOML) and its name suffixed with the change."""
+    """The spec TOML ``text`` with ``key = value`` set in its ``[params]`` table (the value as
+    TOML; a key the table lacks is added at its top, and building the model then refuses a key
+    its type does not have) and its name suffixed with the change."""
     lines = text.splitlines()
-    table, done = None, False
+    table, done, params_at = None, False, None
     for i, line in enumerate(lines):
         head = re.match(r"^\s*\[+([^\]]+)\]+\s*(#.*)?$", line)
         if head:
             table = head.group(1).strip()
+            if table == "params" and line.strip().startswith("[params]"):
+                params_at = i
             continue
         if table == "params" and re.match(rf"^\s*{re.escape(key)}\s*=", line):
             lines[i] = f"{key} = {value}"
@@ -42,7 +45,9 @@ def spec_variant(text: str, key: str, value: str) -> str:
             tag = re.sub(r"[^a-z0-9.]+", "-", f"{key}-{value}".lower()).strip("-")
             lines[i] = f'name = "{name}-{tag}"'
     if not done:
-        raise ValueError(f"--vary {key}: the spec's [params] has no {key!r}")
+        if params_at is None:
+            raise ValueError(f"--vary {key}: the spec has no [params] table")
+        lines.insert(params_at + 1, f"{key} = {value}")
     return "\n".join(lines) + "\n"
 
 
@@ -53,7 +58,7 @@ def curves(spec: str, data: str, test: str, out: str, sequences=(None,), vary: t
     spp, seed, threads, ...). Returns {run name: {"variant", "sequences", "points": [(examples,
     frames, test PSNR), ...]}}."""
     from mcdenoise.training import runs
-    from mcdenoise.training.specs import load_spec, parse_spec
+    from mcdenoise.training.specs import build_model, load_spec, parse_spec
     from mcdenoise.training.train import train
 
     base = load_spec(spec)
@@ -69,7 +74,7 @@ def curves(spec: str, data: str, test: str, out: str, sequences=(None,), vary: t
             # different values into one --out must not overwrite each other's spec file.
             path = outp / "specs" / f"{parse_spec(text).name}.toml"
             path.write_text(text)
-            load_spec(path)                       # a bad value fails here, with the spec's own message
+            build_model(load_spec(path))          # a bad key or value fails here, before any training
             variants.append((f"{key}={v}", path))
     result = {}
     for label, spec_path in variants:

@@ -79,6 +79,9 @@ class WSKPNParams:
     albedo_clamp: (de)modulate by the albedo clamped to [0, 1]. Mitsuba's albedo of a rough
         conductor can be 50 or more, and a filtered irradiance re-modulated by it is a firefly
         (docs/results/scale); off by default, as the shipped models were trained.
+    conv: size of the RepVGG blocks' widest branch, so of the fused convolution (5: the
+        paper's 5x5, 3x3 and 1x1 branches; 3: 3x3 and 1x1 only, as RepVGG itself, 9/25 of
+        the multiply-adds).
     """
 
     blocks: int
@@ -88,6 +91,7 @@ class WSKPNParams:
     alpha: float = 0.2
     batchnorm: bool = True
     albedo_clamp: bool = False
+    conv: int = 5
 
     def __post_init__(self):
         if self.levels < 1:
@@ -101,6 +105,8 @@ class WSKPNParams:
             raise ValueError(f"kernel_sizes: need odd sizes >= 1, got {list(self.kernel_sizes)}")
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha: must be in (0, 1], got {self.alpha}")
+        if self.conv not in (3, 5):
+            raise ValueError(f"conv: must be 3 or 5 (the fused RepVGG convolution's size), got {self.conv}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -290,7 +296,7 @@ def _fold_bn(w: torch.Tensor, b: torch.Tensor, bn: nn.BatchNorm2d | None):
 
 
 class FusedConv(nn.Module):
-    """The inference form of a :class:`RepVGGBlock`: one 5×5 convolution (+ ReLU)."""
+    """The inference form of a :class:`RepVGGBlock`: one ``size``×``size`` convolution (+ ReLU)."""
 
     def __init__(self, conv: nn.Conv2d, act: bool):
         super().__init__()
@@ -306,14 +312,19 @@ class RepVGGBlock(nn.Module):
     """RepVGG block as WSKPN uses it (§4.1): 5×5, 3×3 and 1×1 conv branches (each with BN if
     ``batchnorm``) plus an identity branch (BN'd if ``batchnorm``) when cin == cout, summed,
     then ReLU (``act=False`` for a linear output block).  (N, cin, H, W) -> (N, cout, H, W).
+    ``size=3`` leaves out the 5×5 branch (RepVGG's own block).
 
-    :meth:`fuse` returns the equivalent single 5×5 convolution (exact up to float rounding;
-    BN folded with its running statistics, i.e. the eval-mode block).
+    :meth:`fuse` returns the equivalent single ``size``×``size`` convolution (exact up to float
+    rounding; BN folded with its running statistics, i.e. the eval-mode block).
     """
 
-    def __init__(self, cin: int, cout: int, act: bool = True, batchnorm: bool = True):
+    def __init__(self, cin: int, cout: int, act: bool = True, batchnorm: bool = True, size: int = 5):
         super().__init__()
-        self.branch5 = ConvBN(cin, cout, 5, batchnorm)
+        if size not in (3, 5):
+            raise ValueError(f"RepVGGBlock size must be 3 or 5, got {size}")
+        self.size = size
+        # The 5x5 branch keeps its attribute name (and so the checkpoints' keys) where it exists.
+        self.branch5 = ConvBN(cin, cout, 5, batchnorm) if size == 5 else None
         self.branch3 = ConvBN(cin, cout, 3, batchnorm)
         self.branch1 = ConvBN(cin, cout, 1, batchnorm)
         if cin == cout:
@@ -323,26 +334,30 @@ class RepVGGBlock(nn.Module):
         self.act = act
 
     def forward(self, x):
-        y = self.branch5(x) + self.branch3(x) + self.branch1(x)
+        y = self.branch3(x) + self.branch1(x)
+        if self.branch5 is not None:
+            y = self.branch5(x) + y
         if self.identity is not None:
             y = y + self.identity(x)
         return F.relu(y) if self.act else y
 
     def fuse(self) -> FusedConv:
-        conv5 = self.branch5.conv
-        w, b = self.branch5.fused(5)
-        for br in (self.branch3, self.branch1):
-            wb, bb = br.fused(5)
+        k = self.size
+        branches = [br for br in (self.branch5, self.branch3, self.branch1) if br is not None]
+        w, b = branches[0].fused(k)
+        for br in branches[1:]:
+            wb, bb = br.fused(k)
             w, b = w + wb, b + bb
         if self.identity is not None:
             wi = torch.zeros_like(w)
             idx = torch.arange(w.shape[0])
-            wi[idx, idx, 2, 2] = 1.0
+            wi[idx, idx, k // 2, k // 2] = 1.0
             bn = self.identity if isinstance(self.identity, nn.BatchNorm2d) else None
             wi, bi = _fold_bn(wi, torch.zeros_like(b), bn)
             w, b = w + wi, b + bi
-        ref = conv5.weight
-        conv = nn.Conv2d(conv5.in_channels, conv5.out_channels, 5, padding=2, bias=True,
+        first = branches[0].conv
+        ref = first.weight
+        conv = nn.Conv2d(first.in_channels, first.out_channels, k, padding=k // 2, bias=True,
                          dtype=ref.dtype, device=ref.device)
         with torch.no_grad():
             conv.weight.copy_(w)
@@ -365,13 +380,13 @@ def fuse_repvgg(module: nn.Module) -> nn.Module:
 # ----------------------------------------------------------------------------------------------
 
 class ImportanceNet(nn.Module):
-    """Single-resolution ImportanceNet: ``blocks`` RepVGG blocks, the last linear.
-    (N, cin, H, W) -> [(N, cout, H, W)]."""
+    """Single-resolution ImportanceNet: ``blocks`` RepVGG blocks of size ``conv``, the last
+    linear.  (N, cin, H, W) -> [(N, cout, H, W)]."""
 
-    def __init__(self, cin: int, width: int, blocks: int, cout: int, batchnorm: bool):
+    def __init__(self, cin: int, width: int, blocks: int, cout: int, batchnorm: bool, conv: int = 5):
         super().__init__()
         chans = [cin] + [width] * (blocks - 1) + [cout]
-        self.body = nn.Sequential(*[RepVGGBlock(a, b, act=i < blocks - 1, batchnorm=batchnorm)
+        self.body = nn.Sequential(*[RepVGGBlock(a, b, act=i < blocks - 1, batchnorm=batchnorm, size=conv)
                                     for i, (a, b) in enumerate(zip(chans, chans[1:]))])
 
     def forward(self, x):
@@ -389,18 +404,18 @@ class ImportanceUNet(nn.Module):
     """
 
     def __init__(self, cin: int, widths: Sequence[int], blocks: int, couts: Sequence[int],
-                 batchnorm: bool):
+                 batchnorm: bool, conv: int = 5):
         super().__init__()
         n = len(widths)
 
         def stack(a: int, b: int) -> nn.Sequential:
-            return nn.Sequential(*[RepVGGBlock(a if j == 0 else b, b, batchnorm=batchnorm)
+            return nn.Sequential(*[RepVGGBlock(a if j == 0 else b, b, batchnorm=batchnorm, size=conv)
                                    for j in range(blocks)])
 
         self.enc = nn.ModuleList([stack(cin if l == 0 else widths[l - 1], widths[l]) for l in range(n)])
         self.dec = nn.ModuleList([stack(widths[l + 1] + widths[l], widths[l]) for l in range(n - 1)])
-        self.heads = nn.ModuleList([RepVGGBlock(widths[l], couts[l], act=False, batchnorm=batchnorm)
-                                    for l in range(n)])
+        self.heads = nn.ModuleList([RepVGGBlock(widths[l], couts[l], act=False, batchnorm=batchnorm,
+                                                size=conv) for l in range(n)])
 
     def forward(self, x):
         skips = []
@@ -430,18 +445,21 @@ class PredictionStage(nn.Module):
         self.multiple = 2 ** (params.levels - 1)
         cin = N_FEATURES + int(emissive)
         if params.levels == 1:
-            self.net = ImportanceNet(cin, params.widths[0], params.blocks, 2 * m, params.batchnorm)
+            self.net = ImportanceNet(cin, params.widths[0], params.blocks, 2 * m, params.batchnorm,
+                                     params.conv)
         else:
             couts = [2 * m + 1] * (params.levels - 1) + [2 * m]
-            self.net = ImportanceUNet(cin, params.widths, params.blocks, couts, params.batchnorm)
+            self.net = ImportanceUNet(cin, params.widths, params.blocks, couts, params.batchnorm,
+                                      params.conv)
 
     def forward(self, accum, albedo, normal, depth, emissive=None):
         f = wskpn_features(accum, albedo, normal, depth, self.transfer, emissive)
         if self.multiple > 1:
             f = pad_to_multiple(f, self.multiple)
+        preds = self.net(f)
         # Bounded here, not in reconstruction: onnxruntime fuses the clamp into the last
         # convolution (free), and the fused node keeps this stage's name for the stage table.
-        return [p.clamp(-LOGIT_BOUND, LOGIT_BOUND) for p in self.net(f)]
+        return [p.clamp(-LOGIT_BOUND, LOGIT_BOUND) for p in preds]
 
 
 class ReconstructionStage(nn.Module):
@@ -533,7 +551,7 @@ class WSKPN(nn.Module):
         self.reconstruction.kernel_path = value
 
     def deploy(self, kernel_path: str = "boxsum") -> "WSKPN":
-        """Inference copy: eval mode, RepVGG blocks fused into single 5×5 convolutions, the
+        """Inference copy: eval mode, RepVGG blocks fused into single convolutions, the
         given kernel path ("boxsum", the fast one, by default), no gradients.  ``self`` is
         left unchanged."""
         model = copy.deepcopy(self).eval()
