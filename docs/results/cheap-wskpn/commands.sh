@@ -16,6 +16,10 @@ run() { mcdenoise curves wskpn-3-aa --data data/curves-train --test data/curves-
 run 5 > /tmp/cheap-wskpn-5.log 2>&1 &
 run 3 > /tmp/cheap-wskpn-3.log 2>&1 &
 wait
+# then a fourth 3x3 block (a 9x9 receptive field) on the spec the first call wrote, its chart apart
+mcdenoise curves $out/specs/wskpn-3-aa-conv-3.toml --data data/curves-train --test data/curves-test --out $out \
+  --sequences 19 --steps "${STEPS:-3000}" --eval-every 500 --spp 1 2 4 8 --threads 1 --vary blocks 4
+for f in md json png; do mv $out/curves.$f $out/curves-blocks4.$f; done
 run 5 3
 # each run's last checkpoint as ONNX, scored through the runtime driver on the held-out sequences
 # (temporal state on, 4 warm-up frames) at 1 and 4 spp, one at a time
