@@ -8,8 +8,8 @@ Pipeline (stages, in order; each is a submodule so exported node names carry its
 ``prediction`` (§4.1, §5.1)
     features = [transfer(accum), albedo, (normal+1)/2, depth/max(depth)] (10 channels,
     transfer = spec ``inputs.transfer``), then the ImportanceNet: RepVGG blocks (1×1, 3×3, 5×5
-    conv branches + identity, summed, ReLU) -> M importance maps I_i and M fusion logits per
-    level.  ``levels`` > 1 makes it a U-net that predicts maps at 1/2, 1/4, ... resolution and
+    conv branches, the 5×5 left out with ``params.conv`` = 3, + identity, summed, ReLU) -> M
+    importance maps I_i and M fusion logits per level.  ``levels`` > 1 makes it a U-net that predicts maps at 1/2, 1/4, ... resolution and
     one extra blend logit per finer level (§5.2).
 ``reconstruction`` (§3, §4.2, Eq. 3–5, 7)
     irradiance = accum / (albedo + ALBEDO_EPS); per kernel size k_i the filtered irradiance

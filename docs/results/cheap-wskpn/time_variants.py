@@ -10,7 +10,6 @@ graph over all rounds is printed with onnxruntime's per-stage profile (predictio
     python docs/results/cheap-wskpn/time_variants.py OUT [ROUNDS]
 """
 import json
-import re
 import sys
 import tempfile
 import time
@@ -21,10 +20,11 @@ import onnxruntime as ort
 import torch
 
 from mcdenoise.export.onnx_export import export_model
+from mcdenoise.training.curves import spec_variant
 from mcdenoise.training.specs import SPEC_DIR, build_model, parse_spec
 from mcdenoise.runtime.timing import graph_stage_times
 
-#: name -> [params] overrides of wskpn-3-aa (blocks 3, widths [16], conv 5, unshuffle 1)
+#: name -> [params] overrides of wskpn-3-aa (blocks 3, widths [16], conv 5)
 VARIANTS = {
     "k5-w16-b3 (shipped)": {},
     "k3-w16-b3": {"conv": 3},
@@ -39,13 +39,10 @@ H, W = 720, 1280
 
 
 def spec_text(over: dict) -> str:
+    """wskpn-3-aa's spec with ``over`` set in [params] (the curves command's own rewrite)."""
     text = (SPEC_DIR / "wskpn-3-aa.toml").read_text()
     for k, v in over.items():
-        line = f"{k} = {json.dumps(v)}"
-        if re.search(rf"^{k} = .*$", text, flags=re.M):
-            text = re.sub(rf"^{k} = .*$", line, text, count=1, flags=re.M)
-        else:
-            text = text.replace("[params]\n", f"[params]\n{line}\n", 1)
+        text = spec_variant(text, k, json.dumps(v))
     return text
 
 
