@@ -7,7 +7,9 @@ graph is timed in onnxruntime (2 intra-op threads, the same synthetic 720p frame
 interleaved rounds of 5 runs after 2 untimed, so machine drift hits all alike; the median per
 graph over all rounds is printed with onnxruntime's per-stage profile (prediction, reconstruction).
 
-    python docs/results/cheap-wskpn/time_variants.py OUT [ROUNDS]
+    python docs/results/cheap-wskpn/time_variants.py OUT [ROUNDS [VARIANT...]]
+
+VARIANT names pick a subset (the first one named is the ratio's base).
 """
 import json
 import sys
@@ -34,6 +36,10 @@ VARIANTS = {
     "k3-w12-b4": {"conv": 3, "widths": [12], "blocks": 4},
     "k5-w12-b3": {"widths": [12]},
     "k5-w8-b3": {"widths": [8]},
+    # fewer kernel sizes (each is a pool over four channels and four elementwise passes)
+    "k3-w16-b4-s5": {"conv": 3, "blocks": 4, "kernel_sizes": [3, 5, 7, 9, 13]},
+    "k3-w16-b4-s4": {"conv": 3, "blocks": 4, "kernel_sizes": [3, 5, 9, 13]},
+    "k3-w16-b4-s3": {"conv": 3, "blocks": 4, "kernel_sizes": [3, 7, 13]},
 }
 H, W = 720, 1280
 
@@ -59,10 +65,14 @@ def profiled_stages(path: Path, feed: dict) -> dict[str, float]:
     return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
 
 
-def main(out: Path, rounds: int):
+def main(out: Path, rounds: int, names: list[str]):
     out.mkdir(parents=True, exist_ok=True)
     files = {}
-    for name, over in VARIANTS.items():
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        sys.exit(f"unknown variant(s) {unknown}; known: {list(VARIANTS)}")
+    for name in names or list(VARIANTS):
+        over = VARIANTS[name]
         spec = parse_spec(spec_text(over), f"<wskpn-3-aa {name}>")
         torch.manual_seed(0)
         model = build_model(spec)
@@ -103,4 +113,4 @@ def main(out: Path, rounds: int):
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 3)
+    main(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 3, sys.argv[3:])
