@@ -34,6 +34,7 @@ VARIANTS = {
     "k3-w8-b3": {"conv": 3, "widths": [8]},
     "k3-w16-b4": {"conv": 3, "blocks": 4},
     "k3-w12-b4": {"conv": 3, "widths": [12], "blocks": 4},
+    "k3-w8-b4": {"conv": 3, "widths": [8], "blocks": 4},
     "k5-w12-b3": {"widths": [12]},
     "k5-w8-b3": {"widths": [8]},
     # fewer kernel sizes (each is a pool over four channels and four elementwise passes)
