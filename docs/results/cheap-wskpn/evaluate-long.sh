@@ -10,6 +10,8 @@
 set -e
 cd "$(dirname "$0")/../../.."
 out=docs/results/cheap-wskpn
+mkdir -p /tmp/cheap-wskpn
+[ -f /tmp/cheap-wskpn/long-conv-5.onnx ] || mcdenoise export $out/long-conv-5 --out /tmp/cheap-wskpn/long-conv-5.onnx
 for set in ${SETS:-long-slow}; do
   [ -f data/$set/manifest.json ] || { echo "data/$set not rendered, skipped" >&2; continue; }
   for spp in 1 4 8; do

@@ -12,6 +12,8 @@ out=docs/results/cheap-wskpn
 name=${NAME:-conv-3-blocks-4}
 models="/tmp/cheap-wskpn/long-$name.onnx models/wskpn-3-aa.onnx oidn-fast"; tag=longer
 [ $name = conv-3-blocks-4 ] || { models="/tmp/cheap-wskpn/long-$name.onnx models/wskpn-4x3-aa.onnx models/wskpn-3-aa.onnx oidn-fast"; tag=longer-$name; }
+mkdir -p /tmp/cheap-wskpn
+[ -f /tmp/cheap-wskpn/long-$name.onnx ] || mcdenoise export $out/long-$name --out /tmp/cheap-wskpn/long-$name.onnx
 for set in ${SETS:-curves-test heldout-room_window}; do
   [ -f data/$set/manifest.json ] || { echo "data/$set not rendered, skipped" >&2; continue; }
   warm=8; [ $set = curves-test ] && warm=4
