@@ -12,7 +12,8 @@ from mcdenoise.training.models import example_inputs
 from mcdenoise.training.models.common import emitter_albedo
 from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, ImportanceNet,
                                    RepVGGBlock, ReconstructionStage,
-                                   WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, downsample2,
+                                   WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, bypass_mask,
+                                   downsample2,
                                    fuse_kernels, fusion_factors, importance_weights, kernel_exponentials,
                                    pad_to_multiple, temporal_accumulate, upsample2)
 from mcdenoise.training.specs import SpecError, build_model, list_specs, load_spec, parse_spec
@@ -161,6 +162,81 @@ def test_lights_demodulate_by_one_and_the_network_sees_them():
     with torch.no_grad():
         out = lit(*t)[0]
     assert float(out[..., 8:].max()) <= 15.7 * (1 + ALBEDO_EPS) + 1e-4
+
+
+def _bypass_spec(raw: str | None = None) -> str:
+    """wskpn-4x3-aa with the emissive layer and ``emitter_bypass`` (docs/results/emitters)."""
+    raw = raw or load_spec("wskpn-4x3-aa").raw
+    assert '"depth"]' in raw and "\nconv = 3" in raw
+    return raw.replace('"depth"]', '"depth", "emissive"]').replace("\nconv = 3", "\nemitter_bypass = true\nconv = 3")
+
+
+@pytest.mark.parametrize("path", ["boxsum", "unfold"])
+def test_emitter_bypass_keeps_lights_out_of_every_kernel(path):
+    """With ``emitter_bypass`` a light 10^5 times its surroundings reaches no other pixel, whatever
+    weight the network gives it, and passes through itself; a light filling whole windows (empty
+    windows) stays finite in float32 and float64, training and deployed."""
+    torch.manual_seed(0)
+    model = build_model(parse_spec(_bypass_spec(), "s.toml"))
+    model.kernel_path = path
+    names = model.input_names
+    t = _tensors(model, 2, 32, 32)
+    light = torch.zeros(2, 1, 32, 32)
+    light[..., 10:14, 10:20] = 1.0         # a small light inside the frame
+    light[..., :6, :] = 1.0                # a strip wider than the 13x13 window's half: empty windows
+    light[1, :, 20, 5] = 0.25              # an edge pixel at 4 spp: one sample of four hit the light
+    t[names.index("emissive")][:] = light
+    colour = t[names.index("color")]
+    colour[:] = colour.clamp(max=1.0)
+    colour[light.expand_as(colour) > 0] = 1e5
+    keep = bypass_mask(light).expand_as(colour) > 0
+    for dtype, mode in ((torch.float32, "eval"), (torch.float64, "train"), (torch.float32, "train")):
+        m = model.to(dtype)
+        m.train(mode == "train")
+        with torch.no_grad():
+            out = m(*[x.to(dtype) for x in t])[0]
+        assert torch.isfinite(out).all(), (dtype, mode)
+        assert float(out[keep].max()) < 1e3, (dtype, mode)           # no light bled in
+        torch.testing.assert_close(out[~keep], colour[~keep].to(dtype), rtol=0, atol=0)
+    with torch.no_grad():
+        out = model.float().deploy(path)(*t)[0]
+    assert torch.isfinite(out).all() and float(out[keep].max()) < 1e3
+    # without the bypass the same weights let the light through (the test can fail)
+    plain = build_model(parse_spec(_bypass_spec().replace("emitter_bypass = true", "emitter_bypass = false"), "s.toml"))
+    plain.load_state_dict(model.state_dict())
+    plain.eval()
+    with torch.no_grad():
+        assert float(plain(*t)[0][keep].max()) > 1e3
+
+
+def test_emitter_bypass_paths_agree_and_gradients_stay_finite():
+    """boxsum and unfold agree where the mask keeps a pixel (its own tap is always in); the
+    float64 training form has finite gradients with empty windows."""
+    gen = torch.Generator().manual_seed(3)
+    x = torch.rand(2, 3, 24, 24, generator=gen, dtype=torch.float64)
+    e = torch.zeros(2, 1, 24, 24, dtype=torch.float64)
+    e[..., :8, :] = 1.0
+    e[..., 12:15, 12:15] = 0.5
+    x[e.expand_as(x) > 0] = 1e4
+    keep = bypass_mask(e)
+    imp = (30 * torch.randn(2, 6, 24, 24, generator=gen, dtype=torch.float64)).requires_grad_()
+    logits = torch.randn(2, 6, 24, 24, generator=gen, dtype=torch.float64)
+    sizes = (3, 5, 7, 9, 11, 13)
+    box = fuse_kernels(x, imp, logits, sizes, "boxsum", keep)
+    unf = fuse_kernels(x, imp, logits, sizes, "unfold", keep)
+    k = keep.expand_as(box) > 0
+    torch.testing.assert_close(box[k], unf[k], rtol=1e-9, atol=0)
+    assert float(box.detach()[k].max()) <= 1.0 + 1e-9
+    box.sum().backward()
+    assert torch.isfinite(imp.grad).all()
+
+
+def test_emitter_bypass_needs_the_emissive_layer_and_one_level():
+    raw = _bypass_spec()
+    with pytest.raises(ValueError, match="emitter_bypass needs the 'emissive' layer"):
+        build_model(parse_spec(raw.replace('"depth", "emissive"]', '"depth"]'), "s.toml"))
+    with pytest.raises(ValueError, match="emitter_bypass: needs levels = 1"):
+        WSKPNParams(blocks=1, widths=(4, 4), levels=2, emitter_bypass=True)
 
 
 # ----------------------------------------------------------------------------------------------

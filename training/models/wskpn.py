@@ -15,7 +15,8 @@ Pipeline (stages, in order; each is a submodule so exported node names carry its
     irradiance = accum / (albedo + ALBEDO_EPS); per kernel size k_i the filtered irradiance
     R_i(p) = Σ_{q∈Ω_k(p)} exp(I_i(q)) x(q) / Σ_{q∈Ω_k(p)} exp(I_i(q)); fused with softmax
     weights of the logits (Eq. 5); for levels > 1 the levels are combined from the coarsest by
-    Eq. 7; finally re-modulated by (albedo + ALBEDO_EPS).
+    Eq. 7; finally re-modulated by (albedo + ALBEDO_EPS).  With ``params.emitter_bypass`` the
+    pixels a light covers (``emissive`` > 0) are in no window and keep ``accum``.
 
 Because a WSKPN weight depends only on the *source* pixel q, Eq. 3–4 equal
 boxsum(exp(I)·x) / boxsum(exp(I)): the ``"boxsum"`` kernel path (one box filter per kernel
@@ -54,6 +55,9 @@ LOGIT_BOUND = 40.0
 #: window in a corner), a / boxmean(w) <= exp(80)·169/49 ≈ 2e35, and the fused sums at most
 #: exp(LOGIT_BOUND)·M·max(x) ≈ 1e18·max(x): finite and never 0 for any network output.
 IMPORTANCE_BOUND = LOGIT_BOUND
+#: Floor of a window's weight sum with ``emitter_bypass`` (:func:`fuse_boxsum`): only an empty
+#: window (every tap a light) is below it.
+EMPTY_WINDOW = 1e-20
 #: Kernel application variants (see module docstring); "boxsum" is the fast, deployed one.
 KERNEL_PATHS = ("boxsum", "unfold")
 #: Pixel layers WSKPN reads, and the channel count of the ImportanceNet input.
@@ -82,6 +86,11 @@ class WSKPNParams:
     conv: size of the RepVGG blocks' widest branch, so of the fused convolution (5: the
         paper's 5x5, 3x3 and 1x1 branches; 3: 3x3 and 1x1 only, as RepVGG itself, 9/25 of
         the multiply-adds).
+    emitter_bypass: pixels where any sample's first hit is an area light (the ``emissive``
+        layer > 0, which the spec must read) are left out of every kernel and pass through
+        unfiltered (the accumulated colour), so a light 100-1000x brighter than the wall
+        beside it cannot bleed into it as a halo however small the kernel weight the network
+        gives it (docs/results/emitters). One level only.
     """
 
     blocks: int
@@ -92,6 +101,7 @@ class WSKPNParams:
     batchnorm: bool = True
     albedo_clamp: bool = False
     conv: int = 5
+    emitter_bypass: bool = False
 
     def __post_init__(self):
         if self.levels < 1:
@@ -107,6 +117,9 @@ class WSKPNParams:
             raise ValueError(f"alpha: must be in (0, 1], got {self.alpha}")
         if self.conv not in (3, 5):
             raise ValueError(f"conv: must be 3 or 5 (the fused RepVGG convolution's size), got {self.conv}")
+        if self.emitter_bypass and self.levels != 1:
+            raise ValueError(f"emitter_bypass: needs levels = 1 (the levels of Eq. 7 would mix the lights "
+                             f"back in), got levels = {self.levels}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -201,62 +214,88 @@ def apply_kernel_boxsum(x: torch.Tensor, weights: torch.Tensor, k: int) -> torch
     return _window_mean(weights * x, k) / _window_mean(weights, k)
 
 
-def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int) -> torch.Tensor:
+def apply_kernel_unfold(x: torch.Tensor, importance: torch.Tensor, k: int,
+                        keep: torch.Tensor | None = None) -> torch.Tensor:
     """Eq. 3–4 as the paper computes them (reference path): unfold the clamped importance map
     into its k² window taps, normalise them with a softmax over the taps, and take the
     weighted sum of the unfolded image.
 
     x: (N, C, H, W); importance: (N, 1, H, W) raw network output.  Taps outside the image are
-    padded with −inf importance (weight 0) and 0 colour.  Memory: k²·C·H·W values.
+    padded with −inf importance (weight 0) and 0 colour.  ``keep``: None, or (N, 1, H, W) in
+    {0, 1}: taps where it is 0 get weight 0 too (a window with none left gives 0;
+    :func:`bypass_mask`).  Memory: k²·C·H·W values.
     """
     n, c, h, w = x.shape
     r = k // 2
     i = importance.clamp(-IMPORTANCE_BOUND, IMPORTANCE_BOUND)
     taps = F.unfold(F.pad(i, (r, r, r, r), value=float("-inf")), k).view(n, k * k, h, w)
     e = torch.exp(taps - taps.amax(dim=1, keepdim=True))
-    wts = e / e.sum(dim=1, keepdim=True)
+    if keep is not None:
+        e = e * F.unfold(keep, k, padding=r).view(n, k * k, h, w)
+        wts = e / e.sum(dim=1, keepdim=True).clamp(min=torch.finfo(e.dtype).tiny)
+    else:
+        wts = e / e.sum(dim=1, keepdim=True)
     cols = F.unfold(x, k, padding=r).view(n, c, k * k, h, w)
     return (cols * wts.unsqueeze(1)).sum(dim=2)
 
 
 def fuse_boxsum(x: torch.Tensor, weights: Sequence[torch.Tensor], factors: Sequence[torch.Tensor],
-                kernel_sizes: Sequence[int]) -> torch.Tensor:
+                kernel_sizes: Sequence[int], keep: torch.Tensor | None = None) -> torch.Tensor:
     """Kernel fusion (Eq. 5) on the boxsum path: Σ_i a_i R_i / Σ_i a_i with
     R_i = boxsum_k_i(w_i·x) / boxsum_k_i(w_i).
 
     x: (N, C, H, W) irradiance; weights (:func:`importance_weights`), factors
     (:func:`fusion_factors`): M (N, 1, H, W) positive planes each.  Returns (N, C, H, W).
+    ``keep``: None, or (N, 1, H, W) in {0, 1} (:func:`bypass_mask`): the weights are
+    multiplied by it, so its 0 pixels are in no window; a window with none left contributes
+    0, and a pixel all of whose windows are empty gets 0 (it is its own tap where keep is 1,
+    so only keep-0 pixels can).
 
     x carries an extra channel of ones, so one multiply and one pool per kernel give
     both sums, and the accumulated ones channel ends as Σ_i a_i: the softmax divides once.
     onnxruntime runs these (C + 1 = 4)-channel ops evenly on two threads; pooling plane by
     plane ran each vertical pass on one thread (1280x720, 2 threads: whole graph 254 -> 240 ms).
     """
-    x1 = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)
+    if keep is not None:
+        # The ones channel becomes keep and x is masked once, so w·x1 masks both sums.
+        x1 = torch.cat([x * keep, keep.to(x.dtype)], dim=1)
+    else:
+        x1 = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)
     acc = None
     for w, a, k in zip(weights, factors, kernel_sizes):
         s = _window_mean(w * x1, k)                 # [boxmean(w·x), boxmean(w)]
-        term = s * (a / s[:, -1:])
+        # An empty window's sums are 0: the floor makes its term 0·a/floor = 0, and it is
+        # below every non-empty window's boxmean(w) >= exp(−40)/169 ≈ 2.5e-20, where a/floor
+        # <= exp(40)/1e-20 stays finite in float32.
+        term = s * (a / (s[:, -1:] if keep is None else s[:, -1:].clamp(min=EMPTY_WINDOW)))
         acc = term if acc is None else acc + term
-    return acc[:, :-1] / acc[:, -1:]
+    return acc[:, :-1] / (acc[:, -1:] if keep is None else acc[:, -1:].clamp(min=EMPTY_WINDOW))
+
+
+def bypass_mask(emissive: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) emissive fraction -> keep mask in {0, 1} of the input's dtype: 1 where no
+    sample's first hit was an area light (:attr:`WSKPNParams.emitter_bypass`)."""
+    return (emissive <= 0).to(emissive.dtype)
 
 
 def fuse_kernels(x: torch.Tensor, importance: torch.Tensor, logits: torch.Tensor,
-                 kernel_sizes: Sequence[int], kernel_path: str = "boxsum") -> torch.Tensor:
+                 kernel_sizes: Sequence[int], kernel_path: str = "boxsum",
+                 keep: torch.Tensor | None = None) -> torch.Tensor:
     """Kernel fusion (Eq. 5): Σ_i α_i R_i with α = softmax over i of ``logits``
     (:func:`fusion_factors`, divided once at the end: onnxruntime's channel Softmax on NCHW
     is slow).  x: (N, C, H, W) irradiance; importance, logits: (N, M, H, W) with
-    M = len(kernel_sizes).  Returns (N, C, H, W).
+    M = len(kernel_sizes); keep: None or (N, 1, H, W) in {0, 1}, the taps left in
+    (:func:`fuse_boxsum`).  Returns (N, C, H, W).
     """
     if kernel_path not in KERNEL_PATHS:
         raise ValueError(f"kernel_path must be one of {KERNEL_PATHS}, got {kernel_path!r}")
     if kernel_path == "boxsum":
         return fuse_boxsum(x, list(importance_weights(importance).split(1, dim=1)),
-                           list(fusion_factors(logits).split(1, dim=1)), kernel_sizes)
+                           list(fusion_factors(logits).split(1, dim=1)), kernel_sizes, keep)
     a = fusion_factors(logits)
     acc = None
     for i, k in enumerate(kernel_sizes):
-        term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k)
+        term = a[:, i:i + 1] * apply_kernel_unfold(x, importance[:, i:i + 1], k, keep)
         acc = term if acc is None else acc + term
     return acc / a.sum(dim=1, keepdim=True)
 
@@ -465,7 +504,8 @@ class PredictionStage(nn.Module):
 class ReconstructionStage(nn.Module):
     """Stage "reconstruction": demodulate, filter and fuse per level, combine levels (Eq. 7),
     re-modulate.  accum, albedo: (N, 3, H, W); preds: output of :class:`PredictionStage`;
-    emissive: None or (N, 1, H, W) (:func:`training.models.common.emitter_albedo`).
+    emissive: None or (N, 1, H, W) (:func:`training.models.common.emitter_albedo`; with
+    ``emitter_bypass`` its > 0 pixels also leave every kernel and pass through as ``accum``).
     Returns (N, 3, H, W) linear HDR."""
 
     def __init__(self, params: WSKPNParams, kernel_path: str = "boxsum"):
@@ -476,11 +516,13 @@ class ReconstructionStage(nn.Module):
         self.multiple = 2 ** (params.levels - 1)
         self.kernel_path = kernel_path
         self.albedo_clamp = params.albedo_clamp
+        self.emitter_bypass = params.emitter_bypass
 
     def forward(self, accum, albedo, preds, emissive=None):
         m = len(self.kernel_sizes)
         modulation = modulation_albedo(albedo, emissive, self.albedo_clamp) + ALBEDO_EPS
         x = accum / modulation
+        keep = bypass_mask(emissive) if self.emitter_bypass else None
         h, w = x.shape[-2], x.shape[-1]
         if self.multiple > 1:
             x = pad_to_multiple(x, self.multiple)
@@ -493,6 +535,7 @@ class ReconstructionStage(nn.Module):
         wide = self.training and x.dtype == torch.float32 and self.kernel_path == "boxsum"
         if wide:
             x = x.double()
+            keep = keep.double() if keep is not None else None
         for l, p in enumerate(preds):
             if l > 0:
                 x = downsample2(x)
@@ -500,10 +543,10 @@ class ReconstructionStage(nn.Module):
                 # The coarsest level has no blend channel: no slice (a copy in onnxruntime).
                 p = p.double() if wide else p
                 weights, factors = kernel_exponentials(p if l == len(preds) - 1 else p[:, :2 * m], m)
-                f = fuse_boxsum(x, weights, factors, self.kernel_sizes)
+                f = fuse_boxsum(x, weights, factors, self.kernel_sizes, keep)
                 filtered.append(f.float() if wide else f)
             else:
-                filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, "unfold"))
+                filtered.append(fuse_kernels(x, p[:, :m], p[:, m:2 * m], self.kernel_sizes, "unfold", keep))
         out = filtered[-1]
         for l in reversed(range(len(preds) - 1)):
             fine = filtered[l]
@@ -512,7 +555,11 @@ class ReconstructionStage(nn.Module):
             out = fine + blend * upsample2(out - downsample2(fine))
         if self.multiple > 1:
             out = out[:, :, :h, :w]
-        return out * modulation
+        out = out * modulation
+        if keep is not None:
+            # The lights pass through: filtered where keep is 1, the accumulated colour where 0.
+            out = accum + keep.to(out.dtype) * (out - accum)
+        return out
 
 
 class WSKPN(nn.Module):
@@ -526,6 +573,9 @@ class WSKPN(nn.Module):
         self.temporal_enabled = temporal
         if temporal:
             self.temporal = TemporalStage(params.alpha)
+        if params.emitter_bypass and "emissive" not in layers:
+            raise ValueError("[params] emitter_bypass needs the 'emissive' layer in [inputs] layers "
+                             "(it says which pixels are lights)")
         self.prediction = PredictionStage(params, transfer, "emissive" in layers)
         self.reconstruction = ReconstructionStage(params, kernel_path)
         self.state_channels, self.input_names, self.output_names = accum_interface(layers, temporal)
