@@ -231,6 +231,26 @@ def test_emitter_bypass_paths_agree_and_gradients_stay_finite():
     assert torch.isfinite(imp.grad).all()
 
 
+def test_dark_albedo_bounds_what_a_miss_spreads_into_its_neighbours():
+    """A miss (the sky: albedo 0, colour 1) beside a grey wall (albedo 0.5, colour 0.1), the
+    kernels told to weigh the sky 10^4 times the wall: demodulated by the albedo itself the sky's
+    irradiance is 100 and the wall's output approaches 100·0.5; with ``dark_albedo`` = 0.1 the
+    sky's irradiance is its colour, and the wall's output stays below the sky's colour."""
+    def wall_max(dark):
+        stage = ReconstructionStage(WSKPNParams(blocks=1, widths=(4,), kernel_sizes=(3, 5), dark_albedo=dark))
+        albedo = torch.full((1, 3, 8, 8), 0.5, dtype=torch.float64)
+        albedo[..., :4] = 0.0
+        accum = torch.full((1, 3, 8, 8), 0.1, dtype=torch.float64)
+        accum[..., :4] = 1.0
+        pred = torch.zeros(1, 4, 8, 8, dtype=torch.float64)
+        pred[:, :2, :, :4] = 9.2       # log(10^4): every kernel weighs the sky pixels 10^4 x
+        return float(stage(accum, albedo, [pred])[..., 4:].max())
+    assert wall_max(0.0) > 20.0
+    assert wall_max(0.1) < 1.0
+    with pytest.raises(ValueError, match="dark_albedo: must be in"):
+        WSKPNParams(blocks=1, widths=(4,), dark_albedo=1.5)
+
+
 def test_emitter_bypass_needs_the_emissive_layer_and_one_level():
     raw = _bypass_spec()
     with pytest.raises(ValueError, match="emitter_bypass needs the 'emissive' layer"):

@@ -91,6 +91,11 @@ class WSKPNParams:
         unfiltered (the accumulated colour), so a light 100-1000x brighter than the wall
         beside it cannot bleed into it as a halo however small the kernel weight the network
         gives it (docs/results/emitters). One level only.
+    dark_albedo: > 0: (de)modulate by the albedo blended toward 1 below this value
+        (:func:`training.models.common.dark_albedo`). Misses (the sky), mirrors and glass have
+        an albedo of 0, so their irradiance is 100x their colour, and a kernel weight is per
+        source pixel: the sky's own denoising weight spreads it into every object beside it
+        (docs/results/emitters). 0: the albedo itself, as the paper and the shipped models.
     """
 
     blocks: int
@@ -102,6 +107,7 @@ class WSKPNParams:
     albedo_clamp: bool = False
     conv: int = 5
     emitter_bypass: bool = False
+    dark_albedo: float = 0.0
 
     def __post_init__(self):
         if self.levels < 1:
@@ -117,6 +123,8 @@ class WSKPNParams:
             raise ValueError(f"alpha: must be in (0, 1], got {self.alpha}")
         if self.conv not in (3, 5):
             raise ValueError(f"conv: must be 3 or 5 (the fused RepVGG convolution's size), got {self.conv}")
+        if not 0.0 <= self.dark_albedo <= 1.0:
+            raise ValueError(f"dark_albedo: must be in [0, 1], got {self.dark_albedo}")
         if self.emitter_bypass and self.levels != 1:
             raise ValueError(f"emitter_bypass: needs levels = 1 (the levels of Eq. 7 would mix the lights "
                              f"back in), got levels = {self.levels}")
@@ -517,10 +525,11 @@ class ReconstructionStage(nn.Module):
         self.kernel_path = kernel_path
         self.albedo_clamp = params.albedo_clamp
         self.emitter_bypass = params.emitter_bypass
+        self.dark_albedo = params.dark_albedo
 
     def forward(self, accum, albedo, preds, emissive=None):
         m = len(self.kernel_sizes)
-        modulation = modulation_albedo(albedo, emissive, self.albedo_clamp) + ALBEDO_EPS
+        modulation = modulation_albedo(albedo, emissive, self.albedo_clamp, self.dark_albedo) + ALBEDO_EPS
         x = accum / modulation
         keep = bypass_mask(emissive) if self.emitter_bypass else None
         h, w = x.shape[-2], x.shape[-1]
