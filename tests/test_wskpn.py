@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from mcdenoise.training.models import example_inputs
-from mcdenoise.training.models.common import emitter_albedo
+from mcdenoise.training.models.common import emitter_albedo, modulation_albedo
 from mcdenoise.training.models.wskpn import (ALBEDO_EPS, IMPORTANCE_BOUND, LOGIT_BOUND, ImportanceNet,
                                    RepVGGBlock, ReconstructionStage,
                                    WSKPNParams, apply_kernel_boxsum, apply_kernel_unfold, bypass_mask,
@@ -92,9 +92,10 @@ def test_output_is_a_convex_combination_of_demodulated_input(name):
     model = build_model(load_spec(name)).eval()
     t = _tensors(model, 1, 20, 28)
     names = model.input_names
-    albedo = t[names.index("albedo")]
-    if "emissive" in names:      # lights (de)modulate by 1, the rest by its albedo
-        albedo = emitter_albedo(albedo, t[names.index("emissive")])
+    # what the model (de)modulates by: lights by 1, dark albedos blended toward 1 (dark_albedo)
+    rec = model.reconstruction
+    albedo = modulation_albedo(t[names.index("albedo")], t[names.index("emissive")] if "emissive" in names else None,
+                               rec.albedo_clamp, rec.dark_albedo)
     t[names.index("color")] = 0.7 * (albedo + ALBEDO_EPS)  # irradiance 0.7 everywhere
     if "history" in names:
         t[names.index("history")] = torch.zeros_like(t[names.index("history")])

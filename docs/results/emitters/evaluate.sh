@@ -13,7 +13,14 @@ models=()
 for r in ${BASE:-docs/results/cheap-wskpn/scratch-more-2} ${RUNS:-}; do
   [ -d $r ] || r=$out/$r
   name=$(basename $r)
-  [ /tmp/emitters/$name.onnx -nt $r/checkpoint.pt ] || mcdenoise export $r --out /tmp/emitters/$name.onnx > /dev/null
+  if [ ! /tmp/emitters/$name.onnx -nt $r/checkpoint.pt ]; then
+    # exported under the run folder's name (evaluate names a method by its spec: two cycles or two data sets of
+    # one spec would collide)
+    rm -rf /tmp/emitters/runs/$name && mkdir -p /tmp/emitters/runs && cp -r $r /tmp/emitters/runs/$name
+    [ $r = ${BASE:-docs/results/cheap-wskpn/scratch-more-2} ] || \
+      sed -i "s/^name = .*/name = \"$name\"/" /tmp/emitters/runs/$name/spec.toml
+    mcdenoise export /tmp/emitters/runs/$name --out /tmp/emitters/$name.onnx > /dev/null
+  fi
   models+=(/tmp/emitters/$name.onnx)
 done
 for set in ${SETS:-curves-test long-slow heldout-room_window}; do
