@@ -6,7 +6,7 @@
 set -e
 cd "$(dirname "$0")/../../.."
 out=docs/results/cheap-wskpn
-for set in ${SETS:-curves-test heldout-room_window long-slow}; do
+for set in ${SETS:-curves-test heldout-room_window long-slow long-medium long-fast}; do
   [ -f data/$set/manifest.json ] || { echo "data/$set not rendered, skipped" >&2; continue; }
   warm=8; [ $set = curves-test ] && warm=4
   for spp in 1 4 8; do
