@@ -9,7 +9,7 @@ import sys, json, numpy as np, torch
 from mcdenoise.training.runs import load_run
 from mcdenoise.training.dataset import SequenceDataset, collate
 from mcdenoise.training.train import run_window
-from mcdenoise.training.metrics import psnr, relmse
+from mcdenoise.training.metrics import RELMSE_EPS, psnr, relmse
 from mcdenoise.runtime.transfer import reinhard_gamma
 torch.set_num_threads(2)
 for r in sys.argv[1:]:
@@ -29,7 +29,7 @@ for r in sys.argv[1:]:
     per = [(psnr(p[i], rf[i]), relmse(p[i], rf[i])) for i in range(len(p))]
     print(" per-item psnr", " ".join("%.1f" % x for x, _ in per))
     print(" per-item relmse", " ".join("%.1f" % y for _, y in per))
-    e = (p - rf) ** 2 / (rf ** 2 + 0.01)
+    e = (p - rf) ** 2 / (rf ** 2 + RELMSE_EPS)   # relmse's per-pixel terms
     lum = rf.mean(-1); pl = p.mean(-1); nl = n.mean(-1)
     flat = e.mean(-1).reshape(-1)
     idx = np.argsort(flat)[::-1][:15]
